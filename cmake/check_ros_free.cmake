@@ -1,0 +1,23 @@
+# Fails when a file under ROOTS includes a ROS header: the core of ground_texture_bow must
+# stay ROS-free. Usage: cmake -DROOTS="dir|dir" -P check_ros_free.cmake
+set(ros_prefixes "ros|roscpp|nodelet|pluginlib|image_transport|cv_bridge|tf|tf2|tf2_ros|tf2_geometry_msgs|tf2_msgs|rosbag|rostest|message_filters|diagnostic_updater|dynamic_reconfigure|std_msgs|sensor_msgs|geometry_msgs|nav_msgs|visualization_msgs|actionlib|ground_texture_bow/ros")
+string(REPLACE "|" ";" ROOTS "${ROOTS}")
+set(bad "")
+foreach(root IN LISTS ROOTS)
+  file(GLOB_RECURSE files "${root}/*.h" "${root}/*.hpp" "${root}/*.cpp" "${root}/*.cc")
+  foreach(f IN LISTS files)
+    file(STRINGS "${f}" hits REGEX "^[ \t]*#[ \t]*include[ \t]*[<\"](${ros_prefixes})/")
+    if(hits)
+      list(APPEND bad "${f}: ${hits}")
+    endif()
+    # Generated ROS messages of this package (ground_texture_bow/Foo.h with a capital letter).
+    file(STRINGS "${f}" hits REGEX "^[ \t]*#[ \t]*include[ \t]*[<\"]ground_texture_bow/[A-Z][A-Za-z0-9]*\\.h")
+    if(hits)
+      list(APPEND bad "${f}: ${hits}")
+    endif()
+  endforeach()
+endforeach()
+if(bad)
+  string(REPLACE ";" "\n  " bad_text "${bad}")
+  message(FATAL_ERROR "ground_texture_bow_core must stay ROS-free, but these files include ROS headers:\n  ${bad_text}")
+endif()

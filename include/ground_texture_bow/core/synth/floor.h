@@ -1,0 +1,64 @@
+// A procedural, unbounded ground-texture floor. Each surface is a deterministic function of a
+// seed: any region renders on demand and nothing is stored. Structure exists at several scales
+// (e.g. asphalt: aggregate stones of many sizes in a darker binder, plus fine speckle), and
+// ageing (dirt, stains, scuffs, tyre marks, debris) accumulates progressively with the day.
+#pragma once
+
+#include <array>
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include <opencv2/core.hpp>
+
+namespace gtbow {
+namespace synth {
+
+enum class Surface { kAsphalt, kConcrete, kCarpet, kLaminate, kFlat };
+
+// Parses "asphalt", "concrete", "carpet", "laminate" or "flat"; throws std::invalid_argument
+// listing the valid names otherwise.
+Surface ParseSurface(const std::string& name);
+std::string SurfaceName(Surface surface);
+// The names ParseSurface accepts, for help texts.
+std::vector<std::string> SurfaceNames();
+
+// A 3x3 row-major homography mapping image pixel centres (u, v, 1) to floor metres.
+using Homography = std::array<double, 9>;
+
+// A calibration disk drawn on top of the floor: white inside `radius`, with a black ring out
+// to 2 * radius. Metres, floor frame.
+struct FloorMarker {
+  double x = 0.0;
+  double y = 0.0;
+  double radius = 0.001;
+};
+
+// How the floor looks at one visit.
+struct FloorState {
+  double day = 0.0;          // age of the floor since mapping, days (>= 0)
+  uint64_t visit_seed = 0;   // randomness of this visit: transient debris
+  double aging = 1.0;        // multiplier on the rate of ageing (0 disables wear)
+  std::vector<FloorMarker> markers;
+};
+
+class Floor {
+ public:
+  Floor(Surface surface, uint64_t seed);
+
+  // Renders floor reflectance (about [0, 1]) into `out` (CV_32F, height x width): pixel (u, v)
+  // sees the floor around floor_from_image * (u, v, 1), averaged over supersample x supersample
+  // samples (anti-aliasing).
+  void Render(const Homography& floor_from_image, int width, int height, int supersample,
+              const FloorState& state, cv::Mat* out) const;
+
+  Surface surface() const { return surface_; }
+  uint64_t seed() const { return seed_; }
+
+ private:
+  Surface surface_;
+  uint64_t seed_;
+};
+
+}  // namespace synth
+}  // namespace gtbow

@@ -1,0 +1,84 @@
+// Synthetic ground-texture datasets with exact ground truth (shared/DATASET_FORMAT.md):
+// a training area kept apart from the map, a lawnmower-path database, and query splits
+// recorded on later days while the floor ages.
+#pragma once
+
+#include <cstdint>
+#include <filesystem>
+#include <map>
+#include <string>
+#include <vector>
+
+#include "ground_texture_bow/core/dataset.h"
+#include "ground_texture_bow/core/synth/camera.h"
+#include "ground_texture_bow/core/synth/floor.h"
+
+namespace gtbow {
+namespace synth {
+
+struct SynthOptions {
+  Surface surface = Surface::kAsphalt;  // floor material
+  uint64_t seed = 1;                     // same options and seed give byte-identical output
+  double area_width = 1.0;               // database area along floor x, metres (> 0)
+  double area_height = 1.0;              // database area along floor y, metres (> 0)
+  double overlap = 0.6;                  // overlap of lawnmower neighbours, fraction [0, 0.95]
+  int train_images = 200;                // images of the separate training area (>= 0)
+  int queries_per_split = 100;           // images per query split (>= 0)
+  std::vector<int> query_days = {0, 30, 90, 180};  // one query split per day, days >= 0
+  double path_fraction = 0.5;            // share of queries taken along paths, rest random
+  double aging = 1.0;                    // rate of floor wear, 1 = default, 0 = none
+  double position_jitter = 0.002;        // database pose noise around the path, metres (sd)
+  double heading_jitter = 0.02;          // database heading noise, radians (sd)
+  CameraOptions camera;                  // image size, scale and sensor effects
+  int threads = 0;                       // worker threads, 0 = all cores
+
+  // Throws std::invalid_argument naming the first bad field.
+  void Check() const;
+};
+
+// The area side (metres) of a square database area whose lawnmower path has about `images`
+// images under `options` (overlap and camera).
+double SquareAreaForImages(const SynthOptions& options, int images);
+
+// One image to render.
+struct PlannedImage {
+  std::string name;   // file name under images/
+  std::string split;  // sequence it belongs to
+  Pose2D pose;        // exact ground truth
+  double day = 0.0;   // floor age when taken, days
+  uint64_t visit = 0; // recording session (debris and lighting)
+};
+
+struct DatasetPlan {
+  DatasetInfo info;
+  std::vector<PlannedImage> images;
+  std::map<std::string, std::vector<std::string>> splits;
+};
+
+// Lays out every image and its pose without rendering anything.
+DatasetPlan PlanDataset(const SynthOptions& options);
+
+// The lighting of a recording session.
+Lighting VisitLighting(uint64_t seed, uint64_t visit);
+
+// Renders one planned image.
+cv::Mat RenderPlannedImage(const Floor& floor, const Camera& camera, const SynthOptions& options,
+                           const PlannedImage& image);
+
+struct SynthSummary {
+  std::map<std::string, size_t> split_sizes;
+  size_t images = 0;
+  double seconds = 0.0;
+  uint64_t bytes = 0;
+  double mean_neighbour_overlap = 0.0;  // consecutive database images along the path
+};
+
+// Renders the dataset into `out` using all threads. The output appears atomically: it is built
+// in a staging directory next to `out` and renamed into place when complete. An existing
+// non-empty `out` is replaced only with `force`. Throws std::invalid_argument or
+// std::runtime_error with a message naming the problem.
+SynthSummary GenerateDataset(const SynthOptions& options, const std::filesystem::path& out,
+                             bool force, bool progress);
+
+}  // namespace synth
+}  // namespace gtbow

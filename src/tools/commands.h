@@ -1,0 +1,13 @@
+// Subcommands of the gtbow command-line tool. Each Register* adds its subcommand to the app;
+// the callback runs the command and throws on failure (gtbow's main reports and exits 2).
+#pragma once
+
+#include <CLI/CLI.hpp>
+
+namespace gtbow {
+namespace tools {
+
+void RegisterSynth(CLI::App& app);
+
+}  // namespace tools
+}  // namespace gtbow

@@ -1,0 +1,101 @@
+// gtbow synth: render a synthetic ground-texture dataset.
+#include <cmath>
+#include <cstdio>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "commands.h"
+#include "ground_texture_bow/core/synth/generator.h"
+
+namespace gtbow {
+namespace tools {
+
+namespace {
+
+struct SynthArgs {
+  std::string out;
+  std::string surface = "asphalt";
+  std::vector<double> area;
+  int database_images = 0;
+  bool force = false;
+  bool quiet = false;
+  bool ideal = false;
+  synth::SynthOptions options;
+};
+
+void RunSynth(SynthArgs& a) {
+  synth::SynthOptions& o = a.options;
+  o.surface = synth::ParseSurface(a.surface);
+  o.camera.sensor_effects = !a.ideal;
+  if (!a.area.empty()) {
+    if (a.area.size() != 2) throw std::invalid_argument("--area takes WIDTH HEIGHT in metres");
+    o.area_width = a.area[0];
+    o.area_height = a.area[1];
+  }
+  if (a.database_images != 0) {
+    if (!a.area.empty()) throw std::invalid_argument("give --area or --database-images, not both");
+    const double side = synth::SquareAreaForImages(o, a.database_images);
+    o.area_width = o.area_height = side;
+  }
+  o.Check();
+  const synth::SynthSummary s = synth::GenerateDataset(o, a.out, a.force, !a.quiet);
+  std::printf("Synthetic %s floor written to %s\n", a.surface.c_str(), a.out.c_str());
+  std::printf("  seed %llu, database area %.3f x %.3f m, footprint %.1f x %.1f mm at %.3f mm/px\n",
+              static_cast<unsigned long long>(o.seed), o.area_width, o.area_height,
+              o.camera.width * o.camera.meters_per_pixel * 1e3,
+              o.camera.height * o.camera.meters_per_pixel * 1e3, o.camera.meters_per_pixel * 1e3);
+  for (const auto& [split, n] : s.split_sizes) {
+    std::printf("  %-14s %7zu images\n", split.c_str(), n);
+  }
+  std::printf("  mean overlap of database neighbours: %.1f%%\n", 100.0 * s.mean_neighbour_overlap);
+  std::printf("  %zu images, %.1f MB, in %.1f s (%.1f images/s)\n", s.images, s.bytes / 1e6,
+              s.seconds, s.images / std::max(1e-9, s.seconds));
+}
+
+}  // namespace
+
+void RegisterSynth(CLI::App& app) {
+  auto args = std::make_shared<SynthArgs>();
+  CLI::App* cmd = app.add_subcommand(
+      "synth", "Render a synthetic ground-texture dataset with exact ground truth");
+  synth::SynthOptions& o = args->options;
+  cmd->add_option("-o,--out", args->out, "Output dataset directory")->required();
+  cmd->add_option("--surface", args->surface, "asphalt, concrete, carpet, laminate (or flat)")
+      ->capture_default_str();
+  cmd->add_option("--seed", o.seed, "Random seed; same arguments and seed give identical output")
+      ->capture_default_str();
+  cmd->add_option("--area", args->area, "Database area WIDTH HEIGHT in metres (default 1 1)")
+      ->expected(2);
+  cmd->add_option("--database-images", args->database_images,
+                  "Choose a square area whose lawnmower path has about this many images");
+  cmd->add_option("--overlap", o.overlap, "Overlap between lawnmower neighbours, fraction")
+      ->capture_default_str();
+  cmd->add_option("--train", o.train_images, "Images of the separate training area")
+      ->capture_default_str();
+  cmd->add_option("--queries", o.queries_per_split, "Images per query split")
+      ->capture_default_str();
+  cmd->add_option("--days", o.query_days, "Query days; one split query_dayNNN per day")
+      ->delimiter(',')
+      ->capture_default_str();
+  cmd->add_option("--path-fraction", o.path_fraction,
+                  "Share of queries taken along paths (rest at random poses)")
+      ->capture_default_str();
+  cmd->add_option("--aging", o.aging, "Rate of floor wear: 1 default, 0 none")
+      ->capture_default_str();
+  cmd->add_option("--width", o.camera.width, "Image width, pixels")->capture_default_str();
+  cmd->add_option("--height", o.camera.height, "Image height, pixels")->capture_default_str();
+  cmd->add_option("--meters-per-pixel", o.camera.meters_per_pixel, "Ground sampling distance")
+      ->capture_default_str();
+  cmd->add_option("--supersample", o.camera.supersample, "Anti-aliasing samples per axis (1-4)")
+      ->capture_default_str();
+  cmd->add_flag("--ideal", args->ideal, "No sensor effects (noise, blur, vignetting, jitter)");
+  cmd->add_option("-j,--threads", o.threads, "Worker threads, 0 = all cores")
+      ->capture_default_str();
+  cmd->add_flag("-f,--force", args->force, "Replace an existing non-empty output directory");
+  cmd->add_flag("-q,--quiet", args->quiet, "No progress bar");
+  cmd->callback([args]() { RunSynth(*args); });
+}
+
+}  // namespace tools
+}  // namespace gtbow
