@@ -1,1 +1,177 @@
+#include "ground_texture_bow/core/synth/generator.h"
+
+#include <unistd.h>
+
+#include <filesystem>
+#include <fstream>
+#include <set>
+#include <stdexcept>
+
 #include <gtest/gtest.h>
+
+#include "ground_texture_bow/core/file_util.h"
+
+namespace fs = std::filesystem;
+
+namespace gtbow {
+namespace synth {
+namespace {
+
+SynthOptions Small() {
+  SynthOptions o;
+  o.area_width = 0.3;
+  o.area_height = 0.25;
+  o.train_images = 6;
+  o.queries_per_split = 4;
+  o.query_days = {0, 60};
+  o.camera.width = 160;  // small images keep the test fast; geometry scales with them
+  o.camera.height = 120;
+  o.camera.meters_per_pixel = 0.0005;
+  return o;
+}
+
+TEST(Generator, PlanHasTheStandardSplitsAndGeometry) {
+  SynthOptions o;  // the defaults: 1 x 1 m, 60% overlap
+  const DatasetPlan plan = PlanDataset(o);
+  EXPECT_EQ(plan.splits.at("train").size(), 200u);
+  EXPECT_EQ(plan.splits.at("query_day000").size(), 100u);
+  EXPECT_EQ(plan.splits.at("query_day180").size(), 100u);
+  ASSERT_EQ(plan.splits.count("database"), 1u);
+  EXPECT_EQ(plan.info.query_days.at("query_day090"), 90);
+  const ImageGeometry g = o.camera.Geometry();
+  std::vector<Pose2D> db, train;
+  for (const auto& im : plan.images) {
+    if (im.split == "database") db.push_back(im.pose);
+    if (im.split == "train") train.push_back(im.pose);
+  }
+  // Lawnmower: consecutive images overlap by about 60%, and cover the area.
+  double sum = 0;
+  int n = 0;
+  for (size_t i = 1; i < db.size(); ++i) {
+    const double ov = Overlap(db[i], db[i - 1], g);
+    if (ov > 0) {
+      sum += ov;
+      ++n;
+    }
+  }
+  EXPECT_NEAR(sum / n, 0.6, 0.05);
+  // The training area is kept apart: no training image overlaps any database image.
+  for (const auto& t : train) {
+    for (const auto& d : db) ASSERT_EQ(Overlap(t, d, g), 0.0);
+  }
+  // Every query has relevant database images.
+  for (const auto& im : plan.images) {
+    if (im.split.rfind("query_", 0) != 0) continue;
+    int relevant = 0;
+    for (const auto& d : db) relevant += IsRelevant(im.pose, d, g) ? 1 : 0;
+    EXPECT_GT(relevant, 0) << im.name;
+  }
+}
+
+TEST(Generator, SquareAreaForImages) {
+  SynthOptions o;
+  for (int n : {100, 32000}) {
+    o.area_width = o.area_height = SquareAreaForImages(o, n);
+    const size_t got = PlanDataset(o).splits.at("database").size();
+    EXPECT_NEAR(double(got), n, 0.03 * n + 20);
+  }
+}
+
+class GeneratorFiles : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    dir_ = fs::temp_directory_path() / ("gtbow_gen_" + std::to_string(::getpid()) + "_" +
+                                        ::testing::UnitTest::GetInstance()->current_test_info()->name());
+    fs::remove_all(dir_);
+    fs::create_directories(dir_);
+  }
+  void TearDown() override { fs::remove_all(dir_); }
+  fs::path dir_;
+};
+
+TEST_F(GeneratorFiles, WritesALoadableDatasetByteIdenticallyForAnyThreadCount) {
+  SynthOptions o = Small();
+  o.threads = 1;
+  const SynthSummary s = GenerateDataset(o, dir_ / "a", false, false);
+  o.threads = 2;
+  GenerateDataset(o, dir_ / "b", false, false);
+  EXPECT_EQ(s.images, s.split_sizes.at("database") + 6 + 2 * 4);
+
+  const Dataset d = Dataset::Load(dir_ / "a");
+  EXPECT_EQ(d.info().geometry.width, 160);
+  EXPECT_EQ(d.info().surface, "asphalt");
+  EXPECT_EQ(d.SplitNames(), (std::vector<std::string>{"database", "query_day000", "query_day060", "train"}));
+  for (const auto& split : d.SplitNames()) {
+    for (const auto& name : d.Split(split)) {
+      ASSERT_EQ(d.LoadGray(name).cols, 160);
+      EXPECT_EQ(ReadFile(dir_ / "a" / "images" / name), ReadFile(dir_ / "b" / "images" / name));
+    }
+  }
+  for (const char* f : {"dataset.yaml", "poses.csv", "sequences/database.txt"}) {
+    EXPECT_EQ(ReadFile(dir_ / "a" / f), ReadFile(dir_ / "b" / f)) << f;
+  }
+  // A different seed gives a different floor.
+  o.seed = 2;
+  GenerateDataset(o, dir_ / "c", false, false);
+  EXPECT_NE(ReadFile(dir_ / "a" / "images" / "database_000000.png"),
+            ReadFile(dir_ / "c" / "images" / "database_000000.png"));
+}
+
+TEST_F(GeneratorFiles, BadInputNeverTouchesExistingOutput) {
+  const fs::path out = dir_ / "out";
+  fs::create_directories(out);
+  std::ofstream(out / "precious.txt") << "keep";
+  try {
+    GenerateDataset(Small(), out, false, false);
+    FAIL();
+  } catch (const std::runtime_error& e) {
+    EXPECT_NE(std::string(e.what()).find("not empty"), std::string::npos) << e.what();
+  }
+  EXPECT_EQ(ReadFile(out / "precious.txt"), "keep");
+
+  SynthOptions bad = Small();
+  bad.area_width = -1;
+  try {
+    GenerateDataset(bad, out, true, false);
+    FAIL();
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("area_width"), std::string::npos);
+  }
+  EXPECT_EQ(ReadFile(out / "precious.txt"), "keep");
+
+  // An output path below a regular file cannot be created.
+  EXPECT_THROW(GenerateDataset(Small(), out / "precious.txt" / "x", false, false), std::runtime_error);
+  // --force replaces the old output only once the new one is complete.
+  GenerateDataset(Small(), out, true, false);
+  EXPECT_FALSE(fs::exists(out / "precious.txt"));
+  EXPECT_TRUE(fs::exists(out / "dataset.yaml"));
+  // Nothing but the output is left in the parent directory.
+  EXPECT_EQ(std::distance(fs::directory_iterator(dir_), fs::directory_iterator()), 1);
+}
+
+TEST(Generator, CheckNamesTheBadField) {
+  auto expect_field = [](SynthOptions o, const std::string& field) {
+    try {
+      o.Check();
+      FAIL() << field;
+    } catch (const std::invalid_argument& e) {
+      EXPECT_NE(std::string(e.what()).find(field), std::string::npos) << e.what();
+    }
+  };
+  SynthOptions o;
+  o.area_height = 0;
+  expect_field(o, "area_height");
+  o = {};
+  o.overlap = 1.0;
+  expect_field(o, "overlap");
+  o = {};
+  o.query_days = {30, 30};
+  expect_field(o, "query_days");
+  o = {};
+  o.train_images = -1;
+  expect_field(o, "train_images");
+}
+
+}  // namespace
+}  // namespace synth
+}  // namespace gtbow

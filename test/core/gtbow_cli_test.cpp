@@ -1,1 +1,90 @@
+// Runs the gtbow binary as a user would and checks exit codes and messages.
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <array>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <string>
+
 #include <gtest/gtest.h>
+
+namespace fs = std::filesystem;
+
+namespace {
+
+struct Result {
+  int code;
+  std::string output;
+};
+
+Result RunGtbow(const std::string& args) {
+  const std::string cmd = std::string(GTBOW_BIN) + " " + args + " 2>&1";
+  FILE* p = ::popen(cmd.c_str(), "r");
+  Result r{-1, ""};
+  if (p == nullptr) return r;
+  std::array<char, 4096> buf;
+  size_t n;
+  while ((n = fread(buf.data(), 1, buf.size(), p)) > 0) r.output.append(buf.data(), n);
+  const int status = ::pclose(p);
+  r.code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+  return r;
+}
+
+class GtbowCli : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    dir_ = fs::temp_directory_path() / ("gtbow_cli_" + std::to_string(::getpid()) + "_" +
+                                        ::testing::UnitTest::GetInstance()->current_test_info()->name());
+    fs::remove_all(dir_);
+    fs::create_directories(dir_);
+  }
+  void TearDown() override { fs::remove_all(dir_); }
+  std::string Out(const std::string& name) { return (dir_ / name).string(); }
+  fs::path dir_;
+};
+
+const char* kSmall = "--train 2 --queries 2 --days 0,30 --width 128 --height 96 "
+                     "--meters-per-pixel 0.0005 -q";
+
+TEST_F(GtbowCli, SynthPrintsASummary) {
+  const Result r = RunGtbow("synth --out " + Out("d") + " --area 0.2 0.15 " + kSmall);
+  ASSERT_EQ(r.code, 0) << r.output;
+  EXPECT_NE(r.output.find("database"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("query_day030"), std::string::npos) << r.output;
+  EXPECT_TRUE(fs::exists(dir_ / "d" / "poses.csv"));
+}
+
+TEST_F(GtbowCli, BadInputGivesAClearMessageAndNonZeroExit) {
+  Result r = RunGtbow("synth --out " + Out("a") + " --surface marble --area 0.2 0.15 " + kSmall);
+  EXPECT_NE(r.code, 0);
+  EXPECT_NE(r.output.find("unknown surface 'marble'"), std::string::npos) << r.output;
+
+  r = RunGtbow("synth --out " + Out("a") + " " + kSmall + " --area -1 1");
+  EXPECT_NE(r.code, 0);
+  EXPECT_NE(r.output.find("area_width"), std::string::npos) << r.output;
+
+  r = RunGtbow("synth --out " + Out("a") + " " + kSmall + " --area 0.2 0.15 --width 0");
+  EXPECT_NE(r.code, 0);
+  EXPECT_NE(r.output.find("width"), std::string::npos) << r.output;
+  EXPECT_FALSE(fs::exists(dir_ / "a"));
+
+  fs::create_directories(dir_ / "full");
+  std::ofstream(dir_ / "full" / "notes.txt") << "mine";
+  r = RunGtbow("synth --out " + Out("full") + " --area 0.2 0.15 " + kSmall);
+  EXPECT_NE(r.code, 0);
+  EXPECT_NE(r.output.find("not empty"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("--force"), std::string::npos) << r.output;
+  EXPECT_TRUE(fs::exists(dir_ / "full" / "notes.txt"));
+
+  std::ofstream(dir_ / "file") << "x";
+  r = RunGtbow("synth --out " + Out("file") + "/sub --area 0.2 0.15 " + kSmall);
+  EXPECT_NE(r.code, 0);
+  EXPECT_NE(r.output.find("file"), std::string::npos) << r.output;
+
+  r = RunGtbow("frobnicate");
+  EXPECT_NE(r.code, 0);
+}
+
+}  // namespace
