@@ -168,19 +168,29 @@ void LatticeRow(int32_t ix0, int32_t iy, uint32_t seed, int n, float* __restrict
   for (int c = 0; c < n; ++c) out[c] = LatticeValue(ix0 + c, iy, seed);
 }
 
-// Bilinear interpolation of the lattice at n points (l0 + q dl, m0 + q dm), q = 0..n-1, all
-// at least one cell inside the lattice.
+// A run of pixels along which lattice coordinates change linearly: point q of the run is at
+// lattice coordinates (l0 + q dl, m0 + q dm).
+struct LatticeRun {
+  float l0, m0, dl, dm;
+};
+
+// Bilinear interpolation of the lattice along one image row made of 16-pixel runs; every point
+// lies at least one cell inside the lattice.
 GTBOW_AVX2_CLONE
-void InterpolateRun(const float* __restrict lat, int stride, float l0, float m0, float dl,
-                    float dm, int n, float* __restrict out) {
-  for (int q = 0; q < n; ++q) {
-    const float l = l0 + q * dl, m = m0 + q * dm;
-    const int c = static_cast<int>(l), r = static_cast<int>(m);
-    const float tx = l - c, ty = m - r;
-    const int at = r * stride + c;
-    const float top = lat[at] + tx * (lat[at + 1] - lat[at]);
-    const float bot = lat[at + stride] + tx * (lat[at + stride + 1] - lat[at + stride]);
-    out[q] = top + ty * (bot - top);
+void InterpolateRow(const float* __restrict lat, int stride, const LatticeRun* runs, int width,
+                    float* __restrict out) {
+  for (int i0 = 0, r = 0; i0 < width; i0 += 16, ++r) {
+    const LatticeRun run = runs[r];
+    const int n = std::min(16, width - i0);
+    for (int q = 0; q < n; ++q) {
+      const float l = run.l0 + q * run.dl, m = run.m0 + q * run.dm;
+      const int c = static_cast<int>(l), rr = static_cast<int>(m);
+      const float tx = l - c, ty = m - rr;
+      const int at = rr * stride + c;
+      const float top = lat[at] + tx * (lat[at + 1] - lat[at]);
+      const float bot = lat[at + stride] + tx * (lat[at + stride + 1] - lat[at + stride]);
+      out[i0 + q] = top + ty * (bot - top);
+    }
   }
 }
 
@@ -201,18 +211,17 @@ cv::Mat LatticeNoise(const View& v, double cell, uint32_t seed) {
   cv::Mat out(v.h, v.w, CV_32F);
   const double k = 1.0 / cell;
   constexpr int kStep = 16;
+  std::vector<LatticeRun> runs((v.w + kStep - 1) / kStep);
   for (int j = 0; j < v.h; ++j) {
-    float* row = out.ptr<float>(j);
-    for (int i0 = 0; i0 < v.w; i0 += kStep) {
+    for (int i0 = 0, r = 0; i0 < v.w; i0 += kStep, ++r) {
       double xa, ya, xb, yb;
       v.FloorAt(i0, j, &xa, &ya);
       v.FloorAt(i0 + kStep, j, &xb, &yb);
-      InterpolateRun(lattice.ptr<float>(), nx, static_cast<float>(xa * k - static_cast<double>(ix0)),
-                     static_cast<float>(ya * k - static_cast<double>(iy0)),
-                     static_cast<float>((xb - xa) * k / kStep),
-                     static_cast<float>((yb - ya) * k / kStep), std::min(kStep, v.w - i0),
-                     row + i0);
+      runs[r] = {static_cast<float>(xa * k - static_cast<double>(ix0)),
+                 static_cast<float>(ya * k - static_cast<double>(iy0)),
+                 static_cast<float>((xb - xa) * k / kStep), static_cast<float>((yb - ya) * k / kStep)};
     }
+    InterpolateRow(lattice.ptr<float>(), nx, runs.data(), v.w, out.ptr<float>(j));
   }
   return out;
 }
@@ -422,29 +431,43 @@ struct StoneShape {
   float bright, texture, coat, light_u, light_v, depth;
 };
 
-// One row run of a stone: writes it where it lies inside its outline and above what was drawn
-// before (depth test). Branch-free so that the compiler vectorises it: this is the floor's
-// hottest loop.
-// On x86-64 an AVX2 clone is chosen at load time where the CPU has it; without FMA
-// contraction both clones compute the same IEEE results, so the output stays byte-identical.
+// A run of `n` pixels of one image row starting at pixel index `idx`, whose floor offsets from
+// an element's centre are (dx0 + k step_x, dy0 + k step_y) for k = 0..n-1.
+struct PixelRun {
+  float dx0, dy0;
+  uint32_t idx;
+  int n;
+};
+
+// Draws one stone over its pixel runs: each pixel takes the stone where it lies inside the
+// outline and above what was drawn before (depth test). The inner loop is branch-free so that
+// the compiler vectorises it: this is the floor's hottest loop. On x86-64 an AVX2 clone is
+// chosen at load time where the CPU has it; without FMA contraction both clones compute the
+// same IEEE results, so the output stays byte-identical.
 GTBOW_AVX2_CLONE
-void StoneSpan(float dx0, float dy0, float sx, float sy, int n, float* __restrict d,
-               float* __restrict out, const float* __restrict gr, const StoneShape& st) {
+void StoneRuns(const PixelRun* runs, int count, float sx, float sy, float* __restrict depth,
+               float* __restrict value, const float* __restrict grain, const StoneShape& st) {
   const float ca = st.cos_a, sa = st.sin_a, ia = st.inv_a, ib = st.inv_b, eu = st.egg_u,
               ev = st.egg_v, rough = st.rough, bright = st.bright, amp = st.texture,
               coat = st.coat, lu = st.light_u, lv = st.light_v, dep_k = st.depth;
-  for (int k = 0; k < n; ++k) {
-    const float dx = dx0 + k * sx, dy = dy0 + k * sy;
-    const float u = (ca * dx + sa * dy) * ia;
-    const float v = (-sa * dx + ca * dy) * ib;
-    const float g = gr[k];
-    const float q = (u * u + v * v) * (1.0f + eu * u + ev * v) + rough * g;
-    const float w = std::min(std::max((q - 0.4f) * (1.0f / 0.6f), 0.0f), 1.0f);
-    const float val = (bright * (1.0f + amp * g) + lu * u + lv * v) *
-                      (1.0f - coat * w * w * (3.0f - 2.0f * w));
-    const bool take = (q < 1.0f) & (dep_k > d[k]);
-    d[k] = take ? dep_k : d[k];
-    out[k] = take ? val : out[k];
+  for (int r = 0; r < count; ++r) {
+    const PixelRun run = runs[r];
+    float* __restrict d = depth + run.idx;
+    float* __restrict out = value + run.idx;
+    const float* __restrict gr = grain + run.idx;
+    for (int k = 0; k < run.n; ++k) {
+      const float dx = run.dx0 + k * sx, dy = run.dy0 + k * sy;
+      const float u = (ca * dx + sa * dy) * ia;
+      const float v = (-sa * dx + ca * dy) * ib;
+      const float g = gr[k];
+      const float q = (u * u + v * v) * (1.0f + eu * u + ev * v) + rough * g;
+      const float w = std::min(std::max((q - 0.4f) * (1.0f / 0.6f), 0.0f), 1.0f);
+      const float val = (bright * (1.0f + amp * g) + lu * u + lv * v) *
+                        (1.0f - coat * w * w * (3.0f - 2.0f * w));
+      const bool take = (q < 1.0f) & (dep_k > d[k]);
+      d[k] = take ? dep_k : d[k];
+      out[k] = take ? val : out[k];
+    }
   }
 }
 
@@ -457,6 +480,8 @@ void DrawStones(Canvas& cv, uint64_t seed, double cell, double prob, double rmin
   float* const val = cv.value;
   const float* const grain = cv.grain;
   const double exp_prob = std::exp(-prob);
+  std::vector<PixelRun> runs;
+  runs.reserve(256);
   ForEachCell(cv.region, cell, reach, seed, [&](CellRng& rng, double x0, double y0) {
     const int n = rng.PoissonExp(exp_prob);
     for (int k = 0; k < n; ++k) {
@@ -488,10 +513,17 @@ void DrawStones(Canvas& cv, uint64_t seed, double cell, double prob, double rmin
       // q < 1 needs (u^2 + v^2) < (1 + rough) / (1 - |e|): bound the search radius by that.
       const double e = std::abs(st.egg_u) + std::abs(st.egg_v);
       const double bound = a * std::sqrt((1.0 + st.rough) / std::max(0.2, 1.0 - e));
+      runs.clear();
+      float step_x = 0.0f, step_y = 0.0f;
       ForEachSpanNear(cv.region, cx, cy, bound,
                       [&](float dx0, float dy0, float sx, float sy, size_t idx, int m) {
-                        StoneSpan(dx0, dy0, sx, sy, m, dep + idx, val + idx, grain + idx, st);
+                        runs.push_back({dx0, dy0, static_cast<uint32_t>(idx), m});
+                        step_x = sx;
+                        step_y = sy;
                       });
+      if (!runs.empty()) {
+        StoneRuns(runs.data(), static_cast<int>(runs.size()), step_x, step_y, dep, val, grain, st);
+      }
     }
   });
 }
