@@ -68,6 +68,16 @@ TEST(Generator, PlanHasTheStandardSplitsAndGeometry) {
   }
 }
 
+TEST(Generator, NoEmptySplits) {
+  SynthOptions o = Small();
+  o.train_images = 0;
+  o.queries_per_split = 0;
+  const DatasetPlan plan = PlanDataset(o);
+  EXPECT_EQ(plan.splits.size(), 1u);
+  EXPECT_EQ(plan.splits.count("database"), 1u);
+  EXPECT_TRUE(plan.info.query_days.empty());
+}
+
 TEST(Generator, SquareAreaForImages) {
   SynthOptions o;
   for (int n : {100, 32000}) {

@@ -133,7 +133,7 @@ DatasetPlan PlanDataset(const SynthOptions& o) {
     CellRng rng(HashCombine(o.seed, 0x7a1));
     const double side = std::max(0.5, std::sqrt(o.train_images * l.fw * l.fh / 0.3));
     const double x0 = o.area_width + 0.5;
-    std::vector<std::string>& names = plan.splits["train"];
+    std::vector<std::string> names;
     for (int i = 0; i < o.train_images; ++i) {
       PlannedImage im;
       im.split = "train";
@@ -145,6 +145,7 @@ DatasetPlan PlanDataset(const SynthOptions& o) {
       names.push_back(im.name);
       plan.images.push_back(im);
     }
+    if (!names.empty()) plan.splits["train"] = std::move(names);
   }
   // Database: a boustrophedon (lawnmower) path; the camera heading follows the robot.
   {
@@ -171,7 +172,7 @@ DatasetPlan PlanDataset(const SynthOptions& o) {
   // Queries: one split per day, half along smooth paths and half at random poses.
   const double qx0 = 0.5 * l.fw, qx1 = std::max(qx0, o.area_width - 0.5 * l.fw);
   const double qy0 = 0.5 * l.fh, qy1 = std::max(qy0, o.area_height - 0.5 * l.fh);
-  for (size_t k = 0; k < o.query_days.size(); ++k) {
+  for (size_t k = 0; k < o.query_days.size() && o.queries_per_split > 0; ++k) {
     const int day = o.query_days[k];
     const std::string split = QuerySplitName(day);
     plan.info.query_days[split] = day;

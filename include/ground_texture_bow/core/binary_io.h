@@ -1,0 +1,100 @@
+// Binary file framing shared by the vocabulary and database files: a magic number, a format
+// version, the payload, and a 64-bit checksum of the payload. Files are written atomically
+// (file_util.h); readers check every length against the bytes present, so a truncated or
+// corrupt file gives a clear error instead of a crash or a silent wrong answer.
+#pragma once
+
+#include <cstdint>
+#include <cstring>
+#include <filesystem>
+#include <stdexcept>
+#include <string>
+#include <type_traits>
+#include <vector>
+
+namespace gtbow {
+
+// Fast 64-bit checksum over a byte range (word-wise multiply-xor; not cryptographic).
+uint64_t Checksum64(const void* data, size_t size);
+
+// Appends plain values and arrays to a byte buffer.
+class BinaryWriter {
+ public:
+  template <typename T>
+  void Put(const T& v) {
+    static_assert(std::is_trivially_copyable<T>::value, "POD only");
+    const size_t at = buf_.size();
+    buf_.resize(at + sizeof(T));
+    std::memcpy(&buf_[at], &v, sizeof(T));
+  }
+  template <typename T>
+  void PutArray(const T* data, size_t count) {
+    static_assert(std::is_trivially_copyable<T>::value, "POD only");
+    Put<uint64_t>(count);
+    const size_t at = buf_.size();
+    buf_.resize(at + count * sizeof(T));
+    if (count > 0) std::memcpy(&buf_[at], data, count * sizeof(T));
+  }
+  template <typename T>
+  void PutVector(const std::vector<T>& v) { PutArray(v.data(), v.size()); }
+  void PutString(const std::string& s) { PutArray(s.data(), s.size()); }
+  std::string& buffer() { return buf_; }
+
+ private:
+  std::string buf_;
+};
+
+// Reads values back with bounds checks; errors name `source`.
+class BinaryReader {
+ public:
+  BinaryReader(const char* data, size_t size, std::string source)
+      : data_(data), size_(size), source_(std::move(source)) {}
+  template <typename T>
+  T Get() {
+    static_assert(std::is_trivially_copyable<T>::value, "POD only");
+    Need(sizeof(T));
+    T v;
+    std::memcpy(&v, data_ + pos_, sizeof(T));
+    pos_ += sizeof(T);
+    return v;
+  }
+  // Reads an array of at most `max_count` elements.
+  template <typename T>
+  std::vector<T> GetVector(uint64_t max_count) {
+    const uint64_t n = Get<uint64_t>();
+    if (n > max_count) Fail("array of " + std::to_string(n) + " elements exceeds the limit");
+    Need(n * sizeof(T));
+    std::vector<T> v(n);
+    if (n > 0) std::memcpy(v.data(), data_ + pos_, n * sizeof(T));
+    pos_ += n * sizeof(T);
+    return v;
+  }
+  std::string GetString(uint64_t max_len) {
+    const auto v = GetVector<char>(max_len);
+    return std::string(v.begin(), v.end());
+  }
+  size_t remaining() const { return size_ - pos_; }
+  [[noreturn]] void Fail(const std::string& what) const {
+    throw std::runtime_error(source_ + ": " + what + " (at byte " + std::to_string(pos_) + ")");
+  }
+
+ private:
+  void Need(uint64_t n) {
+    if (n > size_ - pos_) Fail("file is truncated");
+  }
+  const char* data_;
+  size_t size_;
+  size_t pos_ = 0;
+  std::string source_;
+};
+
+// Writes magic (8 bytes), version, payload size, payload and checksum atomically to `path`.
+void WriteFramedFile(const std::filesystem::path& path, const char magic[8], uint32_t version,
+                     const std::string& payload);
+
+// Reads a framed file and returns its payload; throws std::runtime_error naming the file when
+// the magic, version, size or checksum is wrong.
+std::string ReadFramedFile(const std::filesystem::path& path, const char magic[8],
+                           uint32_t version, const std::string& what);
+
+}  // namespace gtbow

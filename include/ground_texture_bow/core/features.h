@@ -1,0 +1,79 @@
+// Local features of ground images: ORB (the paper's default) or SIFT, through OpenCV.
+#pragma once
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include <opencv2/core.hpp>
+#include <opencv2/features2d.hpp>
+
+namespace gtbow {
+
+enum class FeatureType { kOrb, kSift };
+
+// Parses "orb" or "sift"; throws std::invalid_argument otherwise.
+FeatureType ParseFeatureType(const std::string& name);
+std::string FeatureTypeName(FeatureType type);
+
+struct FeatureOptions {
+  FeatureType type = FeatureType::kOrb;  // detector and descriptor
+  int num_features = 250;                // keypoints kept per image (paper: 250)
+  // ORB (cv::ORB); the defaults are the paper's (8 levels at scale 1.2).
+  float orb_scale_factor = 1.2f;         // pyramid scale step
+  int orb_num_levels = 8;                // pyramid levels
+  int orb_edge_threshold = 31;           // border without features, pixels
+  int orb_first_level = 0;               // pyramid level of the source image
+  int orb_wta_k = 2;                     // points per BRIEF comparison (2, 3 or 4)
+  bool orb_fast_score = false;           // rank by FAST score instead of Harris
+  int orb_patch_size = 31;               // descriptor patch, pixels
+  int orb_fast_threshold = 20;           // FAST threshold, grey levels
+  // SIFT (cv::SIFT).
+  int sift_octave_layers = 3;            // layers per octave
+  double sift_contrast_threshold = 0.04; // DoG contrast threshold
+  double sift_edge_threshold = 10.0;     // edge response threshold
+  double sift_sigma = 1.6;               // Gaussian of octave 0, pixels
+
+  // Throws std::invalid_argument naming the first bad field.
+  void Check() const;
+};
+
+// One keypoint. Angles are radians in [0, 2 pi), counter-clockwise in image coordinates as
+// OpenCV measures them; `octave` is the pyramid level (ORB) or the SIFT octave (>= 0 after
+// removing OpenCV's packing; -1 for SIFT's upsampled octave).
+struct Keypoint {
+  float x = 0;         // pixels
+  float y = 0;         // pixels
+  float angle = 0;     // radians
+  float size = 0;      // diameter of the meaningful neighbourhood, pixels
+  float response = 0;  // detector score
+  int octave = 0;      // pyramid level
+};
+
+// Keypoints and their descriptors: row i of `descriptors` belongs to keypoints[i]
+// (CV_8U, 32 bytes per row for ORB; CV_32F, 128 floats per row for SIFT).
+struct ImageFeatures {
+  std::vector<Keypoint> keypoints;
+  cv::Mat descriptors;
+  size_t size() const { return keypoints.size(); }
+};
+
+class FeatureExtractor {
+ public:
+  explicit FeatureExtractor(const FeatureOptions& options);
+  ~FeatureExtractor();
+  FeatureExtractor(const FeatureExtractor&) = delete;
+  FeatureExtractor& operator=(const FeatureExtractor&) = delete;
+
+  // Extracts features from an 8-bit grayscale image. Throws std::invalid_argument for an empty
+  // or non-8-bit-gray image. A featureless image gives an empty result, not an error.
+  ImageFeatures Extract(const cv::Mat& gray) const;
+
+  const FeatureOptions& options() const { return options_; }
+
+ private:
+  FeatureOptions options_;
+  cv::Ptr<cv::Feature2D> detector_;
+};
+
+}  // namespace gtbow

@@ -1,0 +1,150 @@
+#include "ground_texture_bow/core/bow.h"
+
+#include <algorithm>
+#include <cmath>
+#include <stdexcept>
+
+namespace gtbow {
+
+SizeBinning ParseSizeBinning(const std::string& name) {
+  if (name == "none") return SizeBinning::kNone;
+  if (name == "octave") return SizeBinning::kOctave;
+  if (name == "percentile") return SizeBinning::kPercentile;
+  throw std::invalid_argument("unknown size binning '" + name + "' (valid: none, octave, percentile)");
+}
+
+std::string SizeBinningName(SizeBinning b) {
+  switch (b) {
+    case SizeBinning::kNone: return "none";
+    case SizeBinning::kOctave: return "octave";
+    case SizeBinning::kPercentile: return "percentile";
+  }
+  return "?";
+}
+
+Scoring ParseScoring(const std::string& name) {
+  if (name == "dot") return Scoring::kDot;
+  if (name == "dbow_l1") return Scoring::kDbowL1;
+  throw std::invalid_argument("unknown scoring '" + name + "' (valid: dot, dbow_l1)");
+}
+
+std::string ScoringName(Scoring s) { return s == Scoring::kDot ? "dot" : "dbow_l1"; }
+
+void BowOptions::Check() const {
+  auto need = [](bool ok, const char* what) {
+    if (!ok) throw std::invalid_argument(std::string("bow: ") + what);
+  };
+  need(num_size_bins >= 1 && num_size_bins <= 64, "num_size_bins must be in 1..64");
+  need(soft_assignment >= 1 && soft_assignment <= 16, "soft_assignment must be in 1..16");
+  need(sigma > 0 && std::isfinite(sigma), "sigma must be positive");
+  need(orientation_bins >= 1 && orientation_bins <= 64, "orientation_bins must be in 1..64");
+}
+
+std::vector<float> SizePercentileThresholds(std::vector<float> sizes, int bins) {
+  if (bins < 1) throw std::invalid_argument("SizePercentileThresholds: bins must be >= 1");
+  std::vector<float> t;
+  if (sizes.empty() || bins == 1) return t;
+  std::sort(sizes.begin(), sizes.end());
+  for (int b = 1; b < bins; ++b) {
+    t.push_back(sizes[std::min(sizes.size() - 1, sizes.size() * b / bins)]);
+  }
+  return t;
+}
+
+BowEncoder::BowEncoder(const Vocabulary& vocabulary, const BowOptions& options)
+    : vocabulary_(vocabulary), options_(options) {
+  options_.Check();
+  if (options_.soft_assignment > vocabulary_.max_neighbours()) {
+    throw std::invalid_argument("bow: soft_assignment r = " + std::to_string(options_.soft_assignment) +
+                                " exceeds what a " + VocabularyKindName(vocabulary_.kind()) +
+                                " vocabulary supports (" + std::to_string(vocabulary_.max_neighbours()) + ")");
+  }
+  if (options_.size_binning == SizeBinning::kPercentile &&
+      vocabulary_.size_thresholds().size() + 1 != static_cast<size_t>(options_.num_size_bins)) {
+    throw std::invalid_argument("bow: percentile size binning with S = " +
+                                std::to_string(options_.num_size_bins) +
+                                " needs a vocabulary trained with S - 1 size thresholds; it has " +
+                                std::to_string(vocabulary_.size_thresholds().size()));
+  }
+}
+
+uint32_t BowEncoder::num_rows() const {
+  return static_cast<uint32_t>(options_.SizeBins()) * vocabulary_.size();
+}
+
+int BowEncoder::SizeBin(const Keypoint& k) const {
+  switch (options_.size_binning) {
+    case SizeBinning::kNone: return 0;
+    case SizeBinning::kOctave: return std::clamp(k.octave, 0, options_.num_size_bins - 1);
+    case SizeBinning::kPercentile: {
+      const auto& t = vocabulary_.size_thresholds();
+      return static_cast<int>(std::upper_bound(t.begin(), t.end(), k.size) - t.begin());
+    }
+  }
+  return 0;
+}
+
+BowVector BowEncoder::Encode(const ImageFeatures& f) const {
+  BowVector out;
+  out.source = f.keypoints;
+  out.angles.reserve(f.size());
+  for (const auto& k : f.keypoints) out.angles.push_back(k.angle);
+  if (f.size() == 0) return out;
+  if (f.size() > 65535) throw std::invalid_argument("BowEncoder: more than 65535 keypoints");
+  const int r = options_.soft_assignment;
+  std::vector<WordHit> hits;
+  vocabulary_.Assign(f.descriptors, r, &hits);
+  const uint32_t v = vocabulary_.size();
+  const double inv_two_sigma2 = 1.0 / (2.0 * options_.sigma * options_.sigma);
+  std::vector<KeypointEntry>& kps = out.keypoints;
+  kps.reserve(f.size() * r);
+  for (size_t i = 0; i < f.size(); ++i) {
+    const uint32_t base = static_cast<uint32_t>(SizeBin(f.keypoints[i])) * v;
+    // Soft assignment (§II-D): exp(-d^2 / 2 sigma^2), L1-normalised over the r words.
+    double w[16];
+    double sum = 0.0;
+    for (int j = 0; j < r; ++j) {
+      const double d = hits[i * r + j].distance;
+      w[j] = r == 1 ? 1.0 : std::exp(-d * d * inv_two_sigma2);
+      sum += w[j];
+    }
+    for (int j = 0; j < r; ++j) {
+      const double a = sum > 0 ? w[j] / sum : 1.0 / r;
+      kps.push_back({base + hits[i * r + j].word, static_cast<uint16_t>(i), 0.0f,
+                     static_cast<float>(a)});
+    }
+  }
+  std::sort(kps.begin(), kps.end(), [](const KeypointEntry& a, const KeypointEntry& b) {
+    return a.row != b.row ? a.row < b.row : a.keypoint < b.keypoint;
+  });
+  // tf per row, tf-idf weights, and each keypoint's share of its row (§II-E).
+  const auto& idf = vocabulary_.idf();
+  std::vector<KeypointEntry> kept;
+  kept.reserve(kps.size());
+  double norm = 0.0;
+  for (size_t b = 0; b < kps.size();) {
+    size_t e = b;
+    double tf = 0.0;
+    while (e < kps.size() && kps[e].row == kps[b].row) tf += kps[e++].assignment;
+    const float idf_w = idf.empty() ? 1.0f : idf[kps[b].row % v];
+    const double weight = tf / static_cast<double>(f.size()) * idf_w;
+    if (weight > 0.0) {
+      out.entries.push_back({kps[b].row, static_cast<float>(weight)});
+      norm += options_.scoring == Scoring::kDot ? weight * weight : weight;
+      for (size_t k = b; k < e; ++k) {
+        KeypointEntry ke = kps[k];
+        ke.contribution = static_cast<float>(ke.assignment / tf);
+        kept.push_back(ke);
+      }
+    }
+    b = e;
+  }
+  kps.swap(kept);
+  if (norm > 0.0) {
+    const double scale = options_.scoring == Scoring::kDot ? 1.0 / std::sqrt(norm) : 1.0 / norm;
+    for (auto& e : out.entries) e.weight = static_cast<float>(e.weight * scale);
+  }
+  return out;
+}
+
+}  // namespace gtbow

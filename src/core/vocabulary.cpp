@@ -1,0 +1,624 @@
+#include "ground_texture_bow/core/vocabulary.h"
+
+// FLANN 1.9 headers are not self-contained: this order compiles. (flann::Index<> itself is not
+// used: it instantiates the LSH index, whose serialisation does not compile.)
+#include <flann/general.h>
+#include <flann/util/random.h>
+#include <flann/algorithms/dist.h>
+#include <flann/algorithms/center_chooser.h>
+#include <flann/algorithms/hierarchical_clustering_index.h>
+#include <flann/algorithms/kdtree_index.h>
+
+#include <algorithm>
+#include <atomic>
+#include <cmath>
+#include <limits>
+#include <mutex>
+#include <numeric>
+#include <random>
+#include <stdexcept>
+#include <thread>
+
+#include "ground_texture_bow/core/binary_io.h"
+#include "ground_texture_bow/core/progress.h"
+
+namespace gtbow {
+
+namespace {
+
+constexpr char kVocabularyMagic[8] = {'G', 'T', 'B', 'W', 'V', 'O', 'C', '\0'};
+constexpr uint32_t kVocabularyVersion = 1;
+
+int ThreadCount(int requested) {
+  return requested > 0 ? requested
+                       : static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
+}
+
+// Runs f(begin, end) over [0, n) split into contiguous chunks, one per thread.
+template <typename F>
+void ParallelChunks(size_t n, int threads, F&& f) {
+  threads = std::max(1, std::min<int>(threads, static_cast<int>(n / 64) + 1));
+  std::vector<std::thread> pool;
+  const size_t chunk = (n + threads - 1) / threads;
+  for (int t = 0; t < threads; ++t) {
+    const size_t b = t * chunk, e = std::min(n, b + chunk);
+    if (b >= e) break;
+    pool.emplace_back([&f, b, e, t]() { f(b, e, t); });
+  }
+  for (auto& th : pool) th.join();
+}
+
+// FLANN's randomisation uses the C library's global generator: serialise index builds so that
+// a seed gives the same trees whatever else runs.
+std::mutex& FlannSeedMutex() {
+  static std::mutex m;
+  return m;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Descriptor spaces: how to compare and average descriptors.
+
+// Float vectors under L2 (SIFT, or ORB bytes taken as 32 numbers).
+struct FloatSpace {
+  using Element = float;
+  using FlannDistance = flann::L2<float>;
+  using FlannIndex = flann::KDTreeIndex<FlannDistance>;
+  static float Distance(const float* a, const float* b, int d) {
+    float s = 0;
+    for (int i = 0; i < d; ++i) {
+      const float x = a[i] - b[i];
+      s += x * x;
+    }
+    return std::sqrt(s);
+  }
+  // FLANN reports squared L2.
+  static float FromFlann(float d) { return std::sqrt(std::max(0.0f, d)); }
+};
+
+// Packed binary descriptors under Hamming distance.
+struct BinarySpace {
+  using Element = unsigned char;
+  using FlannDistance = flann::Hamming<unsigned char>;
+  using FlannIndex = flann::HierarchicalClusteringIndex<FlannDistance>;
+  static float Distance(const unsigned char* a, const unsigned char* b, int d) {
+    int s = 0;
+    for (int i = 0; i < d; ++i) s += __builtin_popcount(static_cast<unsigned>(a[i] ^ b[i]));
+    return static_cast<float>(s);
+  }
+  static float FromFlann(unsigned int d) { return static_cast<float>(d); }
+};
+
+// Converts descriptors to the element type of the metric's space.
+cv::Mat ToSpace(const cv::Mat& desc, Metric metric) {
+  if (metric == Metric::kHamming) {
+    if (desc.type() != CV_8U) throw std::invalid_argument("hamming vocabulary needs CV_8U descriptors");
+    return desc.isContinuous() ? desc : desc.clone();
+  }
+  if (metric == Metric::kL2Bytes && desc.type() != CV_8U) {
+    throw std::invalid_argument("l2_bytes vocabulary needs CV_8U (ORB) descriptors");
+  }
+  if (metric == Metric::kL2 && desc.type() != CV_32F) {
+    throw std::invalid_argument("l2 vocabulary needs CV_32F (SIFT) descriptors");
+  }
+  cv::Mat f;
+  desc.convertTo(f, CV_32F);
+  return f;
+}
+
+// ---------------------------------------------------------------------------------------------
+// AKM: flat k-means with approximate assignment (Philbin et al. 2007, paper §II-C).
+
+template <typename Space>
+class AkmVocabulary : public Vocabulary {
+ public:
+  using E = typename Space::Element;
+
+  AkmVocabulary(Metric metric, cv::Mat centroids, int trees, int checks)
+      : metric_(metric), centroids_(std::move(centroids)), trees_(trees), checks_(checks) {
+    BuildIndex(0);
+    fingerprint_ = Checksum64(centroids_.data, centroids_.total() * centroids_.elemSize());
+  }
+
+  VocabularyKind kind() const override { return VocabularyKind::kAkm; }
+  Metric metric() const override { return metric_; }
+  uint32_t size() const override { return static_cast<uint32_t>(centroids_.rows); }
+  int max_neighbours() const override { return 16; }
+
+  void Assign(const cv::Mat& descriptors, int r, std::vector<WordHit>* out) const override {
+    if (r < 1 || r > max_neighbours()) throw std::invalid_argument("Assign: r out of range");
+    out->assign(static_cast<size_t>(descriptors.rows) * r, WordHit{});
+    if (descriptors.rows == 0) return;
+    const cv::Mat q = ToSpace(descriptors, metric_);
+    if (q.cols != centroids_.cols) {
+      throw std::invalid_argument("Assign: descriptor length " + std::to_string(q.cols) +
+                                  " does not match the vocabulary's " +
+                                  std::to_string(centroids_.cols));
+    }
+    Search(q, r, out);
+  }
+
+  // Nearest `r` centroids of each row of `q` (already in the space's element type).
+  void Search(const cv::Mat& q, int r, std::vector<WordHit>* out) const {
+    using DT = typename Space::FlannDistance::ResultType;
+    const flann::Matrix<E> queries(const_cast<E*>(q.ptr<E>()), q.rows, q.cols);
+    std::vector<size_t> idx(static_cast<size_t>(q.rows) * r);
+    std::vector<DT> dist(static_cast<size_t>(q.rows) * r);
+    flann::Matrix<size_t> mi(idx.data(), q.rows, r);
+    flann::Matrix<DT> md(dist.data(), q.rows, r);
+    flann::SearchParams params(checks_);
+    params.cores = 1;
+    index_->knnSearch(queries, mi, md, r, params);
+    out->resize(idx.size());
+    for (size_t i = 0; i < idx.size(); ++i) {
+      (*out)[i].word = static_cast<uint32_t>(idx[i]);
+      (*out)[i].distance = Space::FromFlann(dist[i]);
+    }
+  }
+
+  const cv::Mat& centroids() const { return centroids_; }
+
+ protected:
+  void SaveWords(BinaryWriter* w) const override {
+    w->Put<int32_t>(centroids_.rows);
+    w->Put<int32_t>(centroids_.cols);
+    w->Put<int32_t>(trees_);
+    w->Put<int32_t>(checks_);
+    w->PutArray(centroids_.ptr<E>(), centroids_.total());
+  }
+
+ private:
+  void BuildIndex(uint64_t seed) {
+    std::lock_guard<std::mutex> lock(FlannSeedMutex());
+    flann::seed_random(static_cast<unsigned int>(seed));
+    const flann::Matrix<E> data(centroids_.ptr<E>(), centroids_.rows, centroids_.cols);
+    if constexpr (std::is_same<Space, BinarySpace>::value) {
+      index_ = std::make_unique<typename Space::FlannIndex>(
+          data, flann::HierarchicalClusteringIndexParams(32, flann::FLANN_CENTERS_RANDOM, trees_, 100));
+    } else {
+      index_ = std::make_unique<typename Space::FlannIndex>(data, flann::KDTreeIndexParams(trees_));
+    }
+    index_->buildIndex();
+  }
+
+  Metric metric_;
+  cv::Mat centroids_;  // V x D, CV_32F (L2 metrics) or CV_8U (Hamming)
+  int trees_;
+  int checks_;
+  std::unique_ptr<typename Space::FlannIndex> index_;
+};
+
+// Recomputes centroid c from its members: the mean (float) or the bitwise majority (binary).
+void UpdateCentroids(const cv::Mat& data, const std::vector<uint32_t>& label, cv::Mat* centroids,
+                     std::mt19937_64& rng, int threads) {
+  const int v = centroids->rows, d = centroids->cols;
+  std::vector<uint32_t> count(v, 0);
+  for (uint32_t l : label) ++count[l];
+  if (data.type() == CV_32F) {
+    cv::Mat sum = cv::Mat::zeros(v, d, CV_64F);
+    for (int i = 0; i < data.rows; ++i) {
+      double* s = sum.ptr<double>(label[i]);
+      const float* x = data.ptr<float>(i);
+      for (int k = 0; k < d; ++k) s[k] += x[k];
+    }
+    for (int c = 0; c < v; ++c) {
+      if (count[c] == 0) continue;
+      float* out = centroids->ptr<float>(c);
+      const double* s = sum.ptr<double>(c);
+      for (int k = 0; k < d; ++k) out[k] = static_cast<float>(s[k] / count[c]);
+    }
+  } else {
+    // Bit counts per centroid, accumulated per thread over contiguous chunks.
+    const int bits = d * 8;
+    std::vector<std::vector<uint32_t>> partial(threads);
+    ParallelChunks(static_cast<size_t>(data.rows), threads, [&](size_t b, size_t e, int t) {
+      auto& ones = partial[t];
+      ones.assign(static_cast<size_t>(v) * bits, 0);
+      for (size_t i = b; i < e; ++i) {
+        const unsigned char* x = data.ptr<unsigned char>(static_cast<int>(i));
+        uint32_t* o = ones.data() + static_cast<size_t>(label[i]) * bits;
+        for (int k = 0; k < bits; ++k) o[k] += (x[k >> 3] >> (7 - (k & 7))) & 1;
+      }
+    });
+    for (int c = 0; c < v; ++c) {
+      if (count[c] == 0) continue;
+      unsigned char* out = centroids->ptr<unsigned char>(c);
+      for (int k = 0; k < d; ++k) out[k] = 0;
+      for (int k = 0; k < bits; ++k) {
+        uint32_t ones = 0;
+        for (const auto& p : partial) {
+          if (!p.empty()) ones += p[static_cast<size_t>(c) * bits + k];
+        }
+        if (2 * ones > count[c]) out[k >> 3] |= static_cast<unsigned char>(1 << (7 - (k & 7)));
+      }
+    }
+  }
+  // Empty clusters restart at a random descriptor.
+  std::uniform_int_distribution<int> pick(0, data.rows - 1);
+  for (int c = 0; c < v; ++c) {
+    if (count[c] == 0) data.row(pick(rng)).copyTo(centroids->row(c));
+  }
+}
+
+template <typename Space>
+std::unique_ptr<Vocabulary> TrainAkm(const VocabularyOptions& o, const cv::Mat& data,
+                                     bool progress) {
+  const int v = o.num_words;
+  if (data.rows < v) {
+    throw std::invalid_argument("AKM training needs at least num_words = " + std::to_string(v) +
+                                " descriptors, got " + std::to_string(data.rows));
+  }
+  std::mt19937_64 rng(o.seed);
+  std::vector<int> order(data.rows);
+  std::iota(order.begin(), order.end(), 0);
+  std::shuffle(order.begin(), order.end(), rng);
+  cv::Mat centroids(v, data.cols, data.type());
+  for (int c = 0; c < v; ++c) data.row(order[c]).copyTo(centroids.row(c));
+  const int threads = ThreadCount(o.threads);
+  std::vector<uint32_t> label(data.rows);
+  ProgressBar bar("akm k-means", static_cast<size_t>(o.kmeans_iterations) * data.rows, progress);
+  for (int it = 0; it < o.kmeans_iterations; ++it) {
+    AkmVocabulary<Space> current(o.metric, centroids.clone(), o.num_trees, o.checks);
+    ParallelChunks(static_cast<size_t>(data.rows), threads, [&](size_t b, size_t e, int) {
+      constexpr size_t kBlock = 4096;
+      std::vector<WordHit> hits;
+      for (size_t s = b; s < e; s += kBlock) {
+        const size_t n = std::min(kBlock, e - s);
+        current.Search(data.rowRange(static_cast<int>(s), static_cast<int>(s + n)), 1, &hits);
+        for (size_t i = 0; i < n; ++i) label[s + i] = hits[i].word;
+        bar.Add(n);
+      }
+    });
+    UpdateCentroids(data, label, &centroids, rng, threads);
+  }
+  bar.Finish();
+  return std::make_unique<AkmVocabulary<Space>>(o.metric, centroids, o.num_trees, o.checks);
+}
+
+// ---------------------------------------------------------------------------------------------
+// HKM: a DBoW2-style vocabulary tree (Nister & Stewenius 2006; Galvez-Lopez & Tardos 2012).
+
+template <typename Space>
+class HkmVocabulary : public Vocabulary {
+ public:
+  using E = typename Space::Element;
+  struct Node {
+    int32_t first_child = -1;  // index of the first child in nodes_, -1 for a leaf
+    int32_t num_children = 0;
+    int32_t word = -1;         // word id of a leaf
+  };
+
+  HkmVocabulary(Metric metric, std::vector<Node> nodes, cv::Mat centroids)
+      : metric_(metric), nodes_(std::move(nodes)), centroids_(std::move(centroids)) {
+    num_words_ = 0;
+    for (const auto& n : nodes_) num_words_ += n.word >= 0 ? 1 : 0;
+    fingerprint_ = Checksum64(centroids_.data, centroids_.total() * centroids_.elemSize()) ^
+                   Checksum64(nodes_.data(), nodes_.size() * sizeof(Node));
+  }
+
+  VocabularyKind kind() const override { return VocabularyKind::kHkm; }
+  Metric metric() const override { return metric_; }
+  uint32_t size() const override { return num_words_; }
+  int max_neighbours() const override { return 1; }
+
+  void Assign(const cv::Mat& descriptors, int r, std::vector<WordHit>* out) const override {
+    if (r != 1) throw std::invalid_argument("an HKM vocabulary assigns one word per descriptor (r = 1)");
+    const cv::Mat q = ToSpace(descriptors, metric_);
+    out->assign(static_cast<size_t>(q.rows), WordHit{});
+    if (q.rows > 0 && q.cols != centroids_.cols) {
+      throw std::invalid_argument("Assign: descriptor length does not match the vocabulary");
+    }
+    for (int i = 0; i < q.rows; ++i) {
+      const E* x = q.ptr<E>(i);
+      int32_t node = 0;
+      float best = 0.0f;
+      while (nodes_[node].first_child >= 0) {
+        const Node& n = nodes_[node];
+        int32_t arg = n.first_child;
+        best = std::numeric_limits<float>::max();
+        for (int32_t c = n.first_child; c < n.first_child + n.num_children; ++c) {
+          const float dist = Space::Distance(x, centroids_.ptr<E>(c), q.cols);
+          if (dist < best) {
+            best = dist;
+            arg = c;
+          }
+        }
+        node = arg;
+      }
+      (*out)[i] = {static_cast<uint32_t>(nodes_[node].word), best};
+    }
+  }
+
+ protected:
+  void SaveWords(BinaryWriter* w) const override {
+    w->PutVector(nodes_);
+    w->Put<int32_t>(centroids_.rows);
+    w->Put<int32_t>(centroids_.cols);
+    w->PutArray(centroids_.ptr<E>(), centroids_.total());
+  }
+
+ private:
+  Metric metric_;
+  std::vector<Node> nodes_;  // node 0 is the root; children are contiguous
+  cv::Mat centroids_;        // one row per node (the root's row is unused)
+  uint32_t num_words_;
+};
+
+// k-means++ seeding then Lloyd iterations on the rows `members` of `data`; returns the k
+// centroids and each member's cluster.
+template <typename Space>
+void KMeansPP(const cv::Mat& data, const std::vector<int>& members, int k, std::mt19937_64& rng,
+              cv::Mat* centers, std::vector<int>* assign) {
+  using E = typename Space::Element;
+  const int d = data.cols;
+  const int n = static_cast<int>(members.size());
+  centers->create(k, d, data.type());
+  std::vector<double> dmin(n, std::numeric_limits<double>::max());
+  std::uniform_int_distribution<int> first(0, n - 1);
+  data.row(members[first(rng)]).copyTo(centers->row(0));
+  for (int c = 1; c < k; ++c) {
+    double total = 0;
+    for (int i = 0; i < n; ++i) {
+      const double dd = Space::Distance(data.ptr<E>(members[i]), centers->ptr<E>(c - 1), d);
+      dmin[i] = std::min(dmin[i], dd * dd);
+      total += dmin[i];
+    }
+    std::uniform_real_distribution<double> u(0, total);
+    double t = u(rng);
+    int pick = n - 1;
+    for (int i = 0; i < n; ++i) {
+      t -= dmin[i];
+      if (t <= 0) {
+        pick = i;
+        break;
+      }
+    }
+    data.row(members[pick]).copyTo(centers->row(c));
+  }
+  assign->assign(n, 0);
+  cv::Mat sub(n, d, data.type());
+  for (int i = 0; i < n; ++i) data.row(members[i]).copyTo(sub.row(i));
+  for (int it = 0; it < 10; ++it) {
+    bool changed = false;
+    for (int i = 0; i < n; ++i) {
+      float best = std::numeric_limits<float>::max();
+      int arg = 0;
+      for (int c = 0; c < k; ++c) {
+        const float dist = Space::Distance(sub.ptr<E>(i), centers->ptr<E>(c), d);
+        if (dist < best) {
+          best = dist;
+          arg = c;
+        }
+      }
+      if ((*assign)[i] != arg || it == 0) changed = changed || (*assign)[i] != arg;
+      (*assign)[i] = arg;
+    }
+    std::vector<uint32_t> label(assign->begin(), assign->end());
+    UpdateCentroids(sub, label, centers, rng, 1);
+    if (!changed && it > 0) break;
+  }
+}
+
+template <typename Space>
+std::unique_ptr<Vocabulary> TrainHkm(const VocabularyOptions& o, const cv::Mat& data,
+                                     bool progress) {
+  using Node = typename HkmVocabulary<Space>::Node;
+  const int k = o.hkm_branching;
+  std::mt19937_64 rng(o.seed);
+  std::vector<Node> nodes(1);
+  std::vector<cv::Mat> rows(1, cv::Mat::zeros(1, data.cols, data.type()));
+  // Breadth-first: (node, depth, members).
+  struct Task {
+    int node;
+    int depth;
+    std::vector<int> members;
+  };
+  std::vector<Task> queue;
+  std::vector<int> all(data.rows);
+  std::iota(all.begin(), all.end(), 0);
+  queue.push_back({0, 0, std::move(all)});
+  int32_t words = 0;
+  ProgressBar bar("hkm levels", static_cast<size_t>(o.hkm_depth), progress);
+  int last_depth = 0;
+  for (size_t qi = 0; qi < queue.size(); ++qi) {
+    Task task = std::move(queue[qi]);
+    if (task.depth > last_depth) {
+      bar.Add(task.depth - last_depth);
+      last_depth = task.depth;
+    }
+    const int n = static_cast<int>(task.members.size());
+    cv::Mat centers;
+    std::vector<int> assign;
+    int kk;
+    if (n <= k) {
+      // Too few descriptors to split: each becomes its own child (DBoW2 does the same).
+      kk = n;
+      centers.create(n, data.cols, data.type());
+      for (int i = 0; i < n; ++i) data.row(task.members[i]).copyTo(centers.row(i));
+      assign.resize(n);
+      std::iota(assign.begin(), assign.end(), 0);
+    } else {
+      kk = k;
+      KMeansPP<Space>(data, task.members, k, rng, &centers, &assign);
+    }
+    const int first = static_cast<int>(nodes.size());
+    nodes[task.node].first_child = first;
+    nodes[task.node].num_children = kk;
+    std::vector<std::vector<int>> child_members(kk);
+    for (int i = 0; i < n; ++i) child_members[assign[i]].push_back(task.members[i]);
+    for (int c = 0; c < kk; ++c) {
+      nodes.push_back(Node{});
+      rows.push_back(centers.row(c).clone());
+    }
+    for (int c = 0; c < kk; ++c) {
+      const int id = first + c;
+      const bool leaf = task.depth + 1 >= o.hkm_depth || child_members[c].size() <= 1;
+      if (leaf) {
+        nodes[id].word = words++;
+      } else {
+        queue.push_back({id, task.depth + 1, std::move(child_members[c])});
+      }
+    }
+    task.members.clear();
+    task.members.shrink_to_fit();
+  }
+  bar.Finish();
+  cv::Mat centroids;
+  cv::vconcat(rows, centroids);
+  return std::make_unique<HkmVocabulary<Space>>(o.metric, std::move(nodes), std::move(centroids));
+}
+
+}  // namespace
+
+VocabularyKind ParseVocabularyKind(const std::string& name) {
+  if (name == "akm") return VocabularyKind::kAkm;
+  if (name == "hkm") return VocabularyKind::kHkm;
+  throw std::invalid_argument("unknown vocabulary kind '" + name + "' (valid: akm, hkm)");
+}
+
+std::string VocabularyKindName(VocabularyKind kind) {
+  return kind == VocabularyKind::kAkm ? "akm" : "hkm";
+}
+
+Metric ParseMetric(const std::string& name) {
+  if (name == "l2_bytes") return Metric::kL2Bytes;
+  if (name == "hamming") return Metric::kHamming;
+  if (name == "l2") return Metric::kL2;
+  throw std::invalid_argument("unknown metric '" + name + "' (valid: l2_bytes, hamming, l2)");
+}
+
+std::string MetricName(Metric metric) {
+  switch (metric) {
+    case Metric::kL2Bytes: return "l2_bytes";
+    case Metric::kHamming: return "hamming";
+    case Metric::kL2: return "l2";
+  }
+  return "?";
+}
+
+void VocabularyOptions::Check() const {
+  auto need = [](bool ok, const char* what) {
+    if (!ok) throw std::invalid_argument(std::string("vocabulary: ") + what);
+  };
+  need(num_words >= 2, "num_words must be >= 2");
+  need(kmeans_iterations >= 1, "kmeans_iterations must be >= 1");
+  need(num_trees >= 1 && num_trees <= 64, "num_trees must be in 1..64");
+  need(checks >= 1, "checks must be >= 1");
+  need(hkm_branching >= 2, "hkm_branching must be >= 2");
+  need(hkm_depth >= 1 && hkm_depth <= 12, "hkm_depth must be in 1..12");
+  need(threads >= 0, "threads must be >= 0");
+}
+
+std::unique_ptr<Vocabulary> TrainVocabulary(const VocabularyOptions& o, const cv::Mat& descriptors,
+                                            const std::vector<uint32_t>& image_of, bool progress) {
+  o.Check();
+  if (descriptors.empty()) throw std::invalid_argument("TrainVocabulary: no descriptors");
+  if (image_of.size() != static_cast<size_t>(descriptors.rows)) {
+    throw std::invalid_argument("TrainVocabulary: image_of must have one entry per descriptor");
+  }
+  const cv::Mat data = ToSpace(descriptors, o.metric);
+  std::unique_ptr<Vocabulary> vocab;
+  const bool binary = o.metric == Metric::kHamming;
+  if (o.kind == VocabularyKind::kAkm) {
+    vocab = binary ? TrainAkm<BinarySpace>(o, data, progress) : TrainAkm<FloatSpace>(o, data, progress);
+  } else {
+    vocab = binary ? TrainHkm<BinarySpace>(o, data, progress) : TrainHkm<FloatSpace>(o, data, progress);
+  }
+  // idf = log(N / n_w) over the training images (paper §III: standard tf-idf).
+  std::vector<WordHit> hits;
+  vocab->Assign(descriptors, 1, &hits);
+  std::vector<uint32_t> last_image(vocab->size(), std::numeric_limits<uint32_t>::max());
+  std::vector<uint32_t> df(vocab->size(), 0);
+  uint32_t num_images = 0;
+  std::vector<uint32_t> seen_images(image_of);
+  std::sort(seen_images.begin(), seen_images.end());
+  num_images = static_cast<uint32_t>(std::unique(seen_images.begin(), seen_images.end()) - seen_images.begin());
+  for (size_t i = 0; i < hits.size(); ++i) {
+    const uint32_t w = hits[i].word;
+    if (last_image[w] != image_of[i]) {
+      last_image[w] = image_of[i];
+      ++df[w];
+    }
+  }
+  std::vector<float> idf(vocab->size(), 0.0f);
+  for (uint32_t w = 0; w < vocab->size(); ++w) {
+    if (df[w] > 0) idf[w] = static_cast<float>(std::log(static_cast<double>(num_images) / df[w]));
+  }
+  vocab->set_idf(std::move(idf));
+  return vocab;
+}
+
+void Vocabulary::Save(const std::filesystem::path& path) const {
+  BinaryWriter w;
+  w.Put<uint8_t>(static_cast<uint8_t>(kind()));
+  w.Put<uint8_t>(static_cast<uint8_t>(metric()));
+  w.Put<uint32_t>(size());
+  w.PutVector(idf_);
+  w.PutVector(size_thresholds_);
+  SaveWords(&w);
+  WriteFramedFile(path, kVocabularyMagic, kVocabularyVersion, w.buffer());
+}
+
+namespace {
+
+std::unique_ptr<Vocabulary> MakeVocabularyFromFile(BinaryReader* r, VocabularyKind kind,
+                                                   Metric metric) {
+  constexpr uint64_t kMaxWords = 100000000;
+  if (kind == VocabularyKind::kAkm) {
+    const int32_t rows = r->Get<int32_t>(), cols = r->Get<int32_t>();
+    const int32_t trees = r->Get<int32_t>(), checks = r->Get<int32_t>();
+    if (rows < 1 || cols < 1 || cols > 4096 || trees < 1 || trees > 64 || checks < 1) {
+      r->Fail("invalid AKM header");
+    }
+    if (metric == Metric::kHamming) {
+      auto v = r->GetVector<unsigned char>(kMaxWords * 64);
+      if (v.size() != static_cast<size_t>(rows) * cols) r->Fail("centroid count mismatch");
+      cv::Mat c(rows, cols, CV_8U, v.data());
+      return std::make_unique<AkmVocabulary<BinarySpace>>(metric, c.clone(), trees, checks);
+    }
+    auto v = r->GetVector<float>(kMaxWords * 128);
+    if (v.size() != static_cast<size_t>(rows) * cols) r->Fail("centroid count mismatch");
+    cv::Mat c(rows, cols, CV_32F, v.data());
+    return std::make_unique<AkmVocabulary<FloatSpace>>(metric, c.clone(), trees, checks);
+  }
+  auto read_tree = [&](auto space_tag) -> std::unique_ptr<Vocabulary> {
+    using Space = decltype(space_tag);
+    using V = HkmVocabulary<Space>;
+    auto nodes = r->GetVector<typename V::Node>(kMaxWords * 2);
+    const int32_t rows = r->Get<int32_t>(), cols = r->Get<int32_t>();
+    auto v = r->GetVector<typename Space::Element>(kMaxWords * 256);
+    if (rows < 1 || cols < 1 || v.size() != static_cast<size_t>(rows) * cols ||
+        nodes.size() != static_cast<size_t>(rows)) {
+      r->Fail("invalid HKM tree");
+    }
+    for (const auto& n : nodes) {
+      if (n.first_child >= 0 && (n.num_children < 1 || n.first_child + n.num_children > rows ||
+                                 n.first_child == 0)) {
+        r->Fail("invalid HKM tree node");
+      }
+      if (n.first_child < 0 && n.word < 0) r->Fail("HKM leaf without a word");
+    }
+    cv::Mat c(rows, cols, metric == Metric::kHamming ? CV_8U : CV_32F, v.data());
+    return std::make_unique<V>(metric, std::move(nodes), c.clone());
+  };
+  return metric == Metric::kHamming ? read_tree(BinarySpace{}) : read_tree(FloatSpace{});
+}
+
+}  // namespace
+
+std::unique_ptr<Vocabulary> Vocabulary::Load(const std::filesystem::path& path) {
+  const std::string payload = ReadFramedFile(path, kVocabularyMagic, kVocabularyVersion, "vocabulary");
+  BinaryReader r(payload.data(), payload.size(), path.string());
+  const uint8_t kind = r.Get<uint8_t>(), metric = r.Get<uint8_t>();
+  if (kind > 1 || metric > 2) r.Fail("unknown vocabulary kind or metric");
+  const uint32_t words = r.Get<uint32_t>();
+  auto idf = r.GetVector<float>(100000000);
+  auto thresholds = r.GetVector<float>(256);
+  auto vocab = MakeVocabularyFromFile(&r, static_cast<VocabularyKind>(kind), static_cast<Metric>(metric));
+  if (vocab->size() != words || idf.size() != words) r.Fail("word count mismatch");
+  if (r.remaining() != 0) r.Fail("unexpected trailing data");
+  vocab->set_idf(std::move(idf));
+  vocab->set_size_thresholds(std::move(thresholds));
+  return vocab;
+}
+
+}  // namespace gtbow
