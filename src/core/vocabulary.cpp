@@ -240,6 +240,10 @@ void UpdateCentroids(const cv::Mat& data, const std::vector<uint32_t>& label, cv
 }
 
 template <typename Space>
+void SeedPlusPlus(const cv::Mat& data, const std::vector<int>& members, int k,
+                  std::mt19937_64& rng, cv::Mat* centers);
+
+template <typename Space>
 std::unique_ptr<Vocabulary> TrainAkm(const VocabularyOptions& o, const cv::Mat& data,
                                      bool progress) {
   const int v = o.num_words;
@@ -250,9 +254,16 @@ std::unique_ptr<Vocabulary> TrainAkm(const VocabularyOptions& o, const cv::Mat& 
   std::mt19937_64 rng(o.seed);
   std::vector<int> order(data.rows);
   std::iota(order.begin(), order.end(), 0);
-  std::shuffle(order.begin(), order.end(), rng);
   cv::Mat centroids(v, data.cols, data.type());
-  for (int c = 0; c < v; ++c) data.row(order[c]).copyTo(centroids.row(c));
+  if (static_cast<double>(v) * data.rows <= 5e7) {
+    // Small problems: k-means++ seeding, which avoids most poor local minima.
+    SeedPlusPlus<Space>(data, order, v, rng, &centroids);
+  } else {
+    // Large vocabularies: random distinct descriptors, as Philbin et al. (k-means++ would cost
+    // V x N exact distances).
+    std::shuffle(order.begin(), order.end(), rng);
+    for (int c = 0; c < v; ++c) data.row(order[c]).copyTo(centroids.row(c));
+  }
   const int threads = ThreadCount(o.threads);
   std::vector<uint32_t> label(data.rows);
   ProgressBar bar("akm k-means", static_cast<size_t>(o.kmeans_iterations) * data.rows, progress);
@@ -343,6 +354,59 @@ class HkmVocabulary : public Vocabulary {
   uint32_t num_words_;
 };
 
+// Greedy k-means++ seeding (Arthur & Vassilvitskii 2007, with the 2 + log k local trials of
+// scikit-learn): each new centre is the best of several rows drawn with probability
+// proportional to their squared distance to the nearest centre so far.
+template <typename Space>
+void SeedPlusPlus(const cv::Mat& data, const std::vector<int>& members, int k,
+                  std::mt19937_64& rng, cv::Mat* centers) {
+  using E = typename Space::Element;
+  const int d = data.cols;
+  const int n = static_cast<int>(members.size());
+  centers->create(k, d, data.type());
+  const int trials = 2 + static_cast<int>(std::log(static_cast<double>(k)));
+  std::vector<double> dmin(n), cand(n), best_cand(n);
+  std::uniform_int_distribution<int> first(0, n - 1);
+  data.row(members[first(rng)]).copyTo(centers->row(0));
+  double potential = 0;
+  for (int i = 0; i < n; ++i) {
+    const double dd = Space::Distance(data.ptr<E>(members[i]), centers->ptr<E>(0), d);
+    dmin[i] = dd * dd;
+    potential += dmin[i];
+  }
+  for (int c = 1; c < k; ++c) {
+    double best_potential = std::numeric_limits<double>::max();
+    int best = 0;
+    for (int t = 0; t < trials; ++t) {
+      std::uniform_real_distribution<double> u(0, potential);
+      double x = u(rng);
+      int pick = n - 1;
+      for (int i = 0; i < n; ++i) {
+        x -= dmin[i];
+        if (x <= 0) {
+          pick = i;
+          break;
+        }
+      }
+      double pot = 0;
+      for (int i = 0; i < n; ++i) {
+        const double dd = Space::Distance(data.ptr<E>(members[i]), data.ptr<E>(members[pick]), d);
+        cand[i] = std::min(dmin[i], dd * dd);
+        pot += cand[i];
+      }
+      if (pot < best_potential) {
+        best_potential = pot;
+        best = pick;
+        best_cand.swap(cand);
+      }
+    }
+    data.row(members[best]).copyTo(centers->row(c));
+    dmin.swap(best_cand);
+    best_cand.resize(n);
+    potential = best_potential;
+  }
+}
+
 // k-means++ seeding then Lloyd iterations on the rows `members` of `data`; returns the k
 // centroids and each member's cluster.
 template <typename Space>
@@ -351,29 +415,7 @@ void KMeansPP(const cv::Mat& data, const std::vector<int>& members, int k, std::
   using E = typename Space::Element;
   const int d = data.cols;
   const int n = static_cast<int>(members.size());
-  centers->create(k, d, data.type());
-  std::vector<double> dmin(n, std::numeric_limits<double>::max());
-  std::uniform_int_distribution<int> first(0, n - 1);
-  data.row(members[first(rng)]).copyTo(centers->row(0));
-  for (int c = 1; c < k; ++c) {
-    double total = 0;
-    for (int i = 0; i < n; ++i) {
-      const double dd = Space::Distance(data.ptr<E>(members[i]), centers->ptr<E>(c - 1), d);
-      dmin[i] = std::min(dmin[i], dd * dd);
-      total += dmin[i];
-    }
-    std::uniform_real_distribution<double> u(0, total);
-    double t = u(rng);
-    int pick = n - 1;
-    for (int i = 0; i < n; ++i) {
-      t -= dmin[i];
-      if (t <= 0) {
-        pick = i;
-        break;
-      }
-    }
-    data.row(members[pick]).copyTo(centers->row(c));
-  }
+  SeedPlusPlus<Space>(data, members, k, rng, centers);
   assign->assign(n, 0);
   cv::Mat sub(n, d, data.type());
   for (int i = 0; i < n; ++i) data.row(members[i]).copyTo(sub.row(i));
@@ -526,19 +568,17 @@ std::unique_ptr<Vocabulary> TrainVocabulary(const VocabularyOptions& o, const cv
   // idf = log(N / n_w) over the training images (paper §III: standard tf-idf).
   std::vector<WordHit> hits;
   vocab->Assign(descriptors, 1, &hits);
-  std::vector<uint32_t> last_image(vocab->size(), std::numeric_limits<uint32_t>::max());
+  // Document frequency: distinct training images per word.
+  std::vector<std::pair<uint32_t, uint32_t>> word_image(hits.size());
+  for (size_t i = 0; i < hits.size(); ++i) word_image[i] = {hits[i].word, image_of[i]};
+  std::sort(word_image.begin(), word_image.end());
+  word_image.erase(std::unique(word_image.begin(), word_image.end()), word_image.end());
   std::vector<uint32_t> df(vocab->size(), 0);
-  uint32_t num_images = 0;
-  std::vector<uint32_t> seen_images(image_of);
-  std::sort(seen_images.begin(), seen_images.end());
-  num_images = static_cast<uint32_t>(std::unique(seen_images.begin(), seen_images.end()) - seen_images.begin());
-  for (size_t i = 0; i < hits.size(); ++i) {
-    const uint32_t w = hits[i].word;
-    if (last_image[w] != image_of[i]) {
-      last_image[w] = image_of[i];
-      ++df[w];
-    }
-  }
+  for (const auto& wi : word_image) ++df[wi.first];
+  std::vector<uint32_t> images(image_of);
+  std::sort(images.begin(), images.end());
+  const auto num_images =
+      static_cast<uint32_t>(std::unique(images.begin(), images.end()) - images.begin());
   std::vector<float> idf(vocab->size(), 0.0f);
   for (uint32_t w = 0; w < vocab->size(); ++w) {
     if (df[w] > 0) idf[w] = static_cast<float>(std::log(static_cast<double>(num_images) / df[w]));
