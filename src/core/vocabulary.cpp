@@ -255,7 +255,7 @@ std::unique_ptr<Vocabulary> TrainAkm(const VocabularyOptions& o, const cv::Mat& 
   std::vector<int> order(data.rows);
   std::iota(order.begin(), order.end(), 0);
   cv::Mat centroids(v, data.cols, data.type());
-  if (static_cast<double>(v) * data.rows <= 5e7) {
+  if (static_cast<double>(v) * data.rows <= 2e6) {
     // Small problems: k-means++ seeding, which avoids most poor local minima.
     SeedPlusPlus<Space>(data, order, v, rng, &centroids);
   } else {

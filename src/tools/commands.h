@@ -8,6 +8,7 @@ namespace gtbow {
 namespace tools {
 
 void RegisterSynth(CLI::App& app);
+void RegisterTrainVocab(CLI::App& app);
 
 }  // namespace tools
 }  // namespace gtbow

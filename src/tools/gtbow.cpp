@@ -17,6 +17,7 @@ int main(int argc, char** argv) {
                "maps, evaluation)"};
   app.require_subcommand(1);
   gtbow::tools::RegisterSynth(app);
+  gtbow::tools::RegisterTrainVocab(app);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

@@ -1,0 +1,32 @@
+// The retrieval configuration (features, vocabulary, BoW and index options) and its YAML form,
+// used by the presets in config/ (high_accuracy.yaml, fast.yaml, dbow_baseline.yaml) and by
+// the ROS layer, which copies parameters of the same names.
+#pragma once
+
+#include <filesystem>
+#include <string>
+
+#include "ground_texture_bow/core/bow.h"
+#include "ground_texture_bow/core/features.h"
+#include "ground_texture_bow/core/vocabulary.h"
+
+namespace gtbow {
+
+struct RetrievalConfig {
+  FeatureOptions features;
+  VocabularyOptions vocabulary;
+  BowOptions bow;
+
+  // Checks every part and their combination (e.g. r <= 1 for an HKM vocabulary).
+  void Check() const;
+};
+
+// Parses the YAML form: sections `features`, `vocabulary` and `bow` whose keys are the option
+// names. Missing keys keep their defaults; unknown sections or keys and bad values throw
+// std::runtime_error naming `source`, the line and the key.
+RetrievalConfig ParseRetrievalConfig(const std::string& yaml, const std::string& source);
+RetrievalConfig LoadRetrievalConfig(const std::filesystem::path& path);
+// The YAML form of a configuration (every key, so it documents the defaults).
+std::string FormatRetrievalConfig(const RetrievalConfig& config);
+
+}  // namespace gtbow

@@ -1,0 +1,41 @@
+// Where the command-line tools get their images: a split of a dataset in the package's format,
+// or every image in a folder. Loading and feature extraction run on all cores.
+#pragma once
+
+#include <filesystem>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "ground_texture_bow/core/dataset.h"
+#include "ground_texture_bow/core/features.h"
+
+namespace gtbow {
+namespace tools {
+
+class ImageSource {
+ public:
+  // A dataset split (throws naming the file on a malformed dataset or missing split).
+  static ImageSource FromDataset(const std::filesystem::path& root, const std::string& split);
+  // Every .png/.jpg/.jpeg/.bmp/.tif file in a folder, sorted by name.
+  static ImageSource FromFolder(const std::filesystem::path& folder);
+
+  size_t size() const { return names_.size(); }
+  const std::string& name(size_t i) const { return names_[i]; }
+  // Loads image i as 8-bit gray; throws naming the file when it cannot.
+  cv::Mat LoadGray(size_t i) const;
+  // Keeps every k-th image so that at most `max_images` remain (0 = all).
+  void Subsample(size_t max_images);
+
+ private:
+  std::shared_ptr<Dataset> dataset_;  // null for a folder
+  std::filesystem::path folder_;
+  std::vector<std::string> names_;
+};
+
+// Extracts features of every image on `threads` threads (0 = all cores) with a progress bar.
+std::vector<ImageFeatures> ExtractAll(const ImageSource& source, const FeatureOptions& options,
+                                      int threads, bool progress);
+
+}  // namespace tools
+}  // namespace gtbow
