@@ -137,6 +137,23 @@ class AkmVocabulary : public Vocabulary {
     Search(q, r, out);
   }
 
+  void AssignExact(const cv::Mat& descriptors, std::vector<WordHit>* out) const override {
+    const cv::Mat q = ToSpace(descriptors, metric_);
+    out->assign(static_cast<size_t>(q.rows), WordHit{});
+    for (int i = 0; i < q.rows; ++i) {
+      float best = std::numeric_limits<float>::max();
+      uint32_t arg = 0;
+      for (int c = 0; c < centroids_.rows; ++c) {
+        const float d = Space::Distance(q.ptr<E>(i), centroids_.ptr<E>(c), q.cols);
+        if (d < best) {
+          best = d;
+          arg = static_cast<uint32_t>(c);
+        }
+      }
+      (*out)[i] = {arg, best};
+    }
+  }
+
   // Nearest `r` centroids of each row of `q` (already in the space's element type).
   void Search(const cv::Mat& q, int r, std::vector<WordHit>* out) const {
     using DT = typename Space::FlannDistance::ResultType;
@@ -310,6 +327,10 @@ class HkmVocabulary : public Vocabulary {
   Metric metric() const override { return metric_; }
   uint32_t size() const override { return num_words_; }
   int max_neighbours() const override { return 1; }
+
+  void AssignExact(const cv::Mat& descriptors, std::vector<WordHit>* out) const override {
+    Assign(descriptors, 1, out);  // the tree defines the words: descent is exact
+  }
 
   void Assign(const cv::Mat& descriptors, int r, std::vector<WordHit>* out) const override {
     if (r != 1) throw std::invalid_argument("an HKM vocabulary assigns one word per descriptor (r = 1)");

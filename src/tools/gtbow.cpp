@@ -18,6 +18,7 @@ int main(int argc, char** argv) {
   app.require_subcommand(1);
   gtbow::tools::RegisterSynth(app);
   gtbow::tools::RegisterTrainVocab(app);
+  gtbow::tools::RegisterBenchRetrieval(app);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

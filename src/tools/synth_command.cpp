@@ -89,6 +89,8 @@ void RegisterSynth(CLI::App& app) {
       ->capture_default_str();
   cmd->add_option("--supersample", o.camera.supersample, "Anti-aliasing samples per axis (1-4)")
       ->capture_default_str();
+  cmd->add_option("--only", o.only, "Render only these splits: train, database, queries")
+      ->delimiter(',');
   cmd->add_flag("--ideal", args->ideal, "No sensor effects (noise, blur, vignetting, jitter)");
   cmd->add_option("-j,--threads", o.threads, "Worker threads, 0 = all cores")
       ->capture_default_str();

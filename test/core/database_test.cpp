@@ -180,13 +180,21 @@ TEST(Database, ConcurrentQueriesWithOneWriter) {
       }
     });
   }
+  // The writer interleaves with the readers: it waits for their progress as it goes.
   for (uint32_t i = 0; i < 2000; ++i) {
+    if (i % 200 == 0) {
+      const int seen = queries.load();
+      while (queries.load() < seen + 2) std::this_thread::yield();
+    }
     db.Add(Make({i % 1000, 1, 2}, {0.0f, 0.0f, 0.5f}, {{i % 1000, 0.5f}, {1, 0.5f}, {2, 0.5f}}));
   }
   stop = true;
   for (auto& t : readers) t.join();
   EXPECT_EQ(db.size(), 2000u);
-  EXPECT_GT(queries.load(), 0);
+  EXPECT_GE(queries.load(), 20);
+  // After the writer: the top result holds all three rows' votes.
+  const auto r = db.Query(Make({5, 1, 2}, {0.0f, 0.0f, 0.5f}, {{5, 0.5f}, {1, 0.5f}, {2, 0.5f}}), 1);
+  EXPECT_NEAR(r[0].score, 0.75, 1e-5);
 }
 
 }  // namespace

@@ -78,6 +78,19 @@ TEST(Generator, NoEmptySplits) {
   EXPECT_TRUE(plan.info.query_days.empty());
 }
 
+TEST(Generator, OnlySomeSplitsKeepTheFullDatasetsPoses) {
+  SynthOptions o = Small();
+  const DatasetPlan full = PlanDataset(o);
+  o.only = {"train", "queries"};
+  const DatasetPlan part = PlanDataset(o);
+  EXPECT_EQ(part.splits.count("database"), 0u);
+  EXPECT_EQ(part.splits.at("train"), full.splits.at("train"));
+  EXPECT_EQ(part.splits.at("query_day060"), full.splits.at("query_day060"));
+  EXPECT_EQ(part.images.size(), full.images.size() - full.splits.at("database").size());
+  o.only = {"walls"};
+  EXPECT_THROW(o.Check(), std::invalid_argument);
+}
+
 TEST(Generator, SquareAreaForImages) {
   SynthOptions o;
   for (int n : {100, 32000}) {

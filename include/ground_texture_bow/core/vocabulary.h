@@ -67,6 +67,9 @@ class Vocabulary {
   // For each descriptor row, its `r` nearest words sorted by distance: out[i * r + j].
   // Descriptors must match the metric (CV_8U for kL2Bytes and kHamming, CV_32F for kL2).
   virtual void Assign(const cv::Mat& descriptors, int r, std::vector<WordHit>* out) const = 0;
+  // The exact nearest word of each descriptor by linear scan (AKM) or tree descent (HKM): the
+  // reference for measuring how often Assign's approximate first word agrees.
+  virtual void AssignExact(const cv::Mat& descriptors, std::vector<WordHit>* out) const = 0;
 
   // Inverse document frequency of each word, log(N / n_w) over the N training images
   // (0 for words no training image has).

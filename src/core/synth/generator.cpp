@@ -103,6 +103,10 @@ void SynthOptions::Check() const {
   need(position_jitter >= 0, "position_jitter must be >= 0");
   need(heading_jitter >= 0, "heading_jitter must be >= 0");
   need(threads >= 0, "threads must be >= 0");
+  for (const auto& k : only) {
+    need(k == "train" || k == "database" || k == "queries",
+         "only: unknown split kind '" + k + "' (valid: train, database, queries)");
+  }
   const Layout l = LawnmowerLayout(*this, area_width, area_height);
   need(static_cast<double>(l.cols) * l.rows <= 5e7,
        "the database would exceed 50 million images; reduce the area or the overlap");
@@ -210,6 +214,25 @@ DatasetPlan PlanDataset(const SynthOptions& o) {
       im.visit = kFirstQueryVisit + k;
       names.push_back(im.name);
       plan.images.push_back(im);
+    }
+  }
+  if (!o.only.empty()) {
+    auto kind = [](const std::string& split) {
+      return split.rfind("query_", 0) == 0 ? std::string("queries") : split;
+    };
+    auto wanted = [&](const std::string& split) {
+      return std::find(o.only.begin(), o.only.end(), kind(split)) != o.only.end();
+    };
+    std::vector<PlannedImage> kept;
+    for (auto& im : plan.images) {
+      if (wanted(im.split)) kept.push_back(std::move(im));
+    }
+    plan.images.swap(kept);
+    for (auto it = plan.splits.begin(); it != plan.splits.end();) {
+      it = wanted(it->first) ? std::next(it) : plan.splits.erase(it);
+    }
+    for (auto it = plan.info.query_days.begin(); it != plan.info.query_days.end();) {
+      it = wanted(it->first) ? std::next(it) : plan.info.query_days.erase(it);
     }
   }
   return plan;

@@ -31,6 +31,9 @@ struct SynthOptions {
   double heading_jitter = 0.02;          // database heading noise, radians (sd)
   CameraOptions camera;                  // image size, scale and sensor effects
   int threads = 0;                       // worker threads, 0 = all cores
+  // Render only these kinds of split ("train", "database", "queries"); empty = all. Poses
+  // are those of the full dataset, so partial datasets of one seed fit together.
+  std::vector<std::string> only;
 
   // Throws std::invalid_argument naming the first bad field.
   void Check() const;
