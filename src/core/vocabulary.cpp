@@ -123,6 +123,10 @@ class AkmVocabulary : public Vocabulary {
   Metric metric() const override { return metric_; }
   uint32_t size() const override { return static_cast<uint32_t>(centroids_.rows); }
   int max_neighbours() const override { return 16; }
+  void set_checks(int checks) override {
+    if (checks < 1) throw std::invalid_argument("checks must be >= 1");
+    checks_ = checks;
+  }
 
   void Assign(const cv::Mat& descriptors, int r, std::vector<WordHit>* out) const override {
     if (r < 1 || r > max_neighbours()) throw std::invalid_argument("Assign: r out of range");

@@ -31,12 +31,13 @@ namespace {
 
 struct BenchArgs {
   std::string vocab;
-  std::string preset;
+  std::vector<std::string> presets;
   std::string dataset;
   std::string split = "database";
   std::string query_split;
   size_t queries = 100;
   size_t max_images = 0;
+  int checks = 0;
   int threads = 0;
   std::string markdown;
   bool quiet = false;
@@ -72,15 +73,40 @@ constexpr PaperRow kDbow = {"DBoW", {19.1, 2.5}, {6.7, 0.0}, {0.0, 0.0}, {50, 5.
 constexpr PaperRow kHigh = {"Ours (High Acc.)", {18.9, 2.5}, {24, 0.3}, {1.4, 0.5}, {149.6, 14.9}};
 constexpr PaperRow kFast = {"Ours (Fast)", {18.9, 2.5}, {23.1, 0.3}, {0.6, 0.4}, {31.9, 3.7}};
 
+void RunOne(const BenchArgs& a, const std::string& preset, const RetrievalConfig& c,
+            const Vocabulary* vocab, double vocab_load_ms, const ImageSource& db_src,
+            const std::vector<ImageFeatures>& feats);
+
 void RunBench(const BenchArgs& a) {
-  RetrievalConfig c = a.preset.empty() ? RetrievalConfig{} : LoadRetrievalConfig(a.preset);
+  std::vector<RetrievalConfig> configs;
+  for (const auto& p : a.presets) configs.push_back(LoadRetrievalConfig(p));
+  if (configs.empty()) configs.emplace_back();
+  for (const auto& c : configs) {
+    const FeatureOptions& f = c.features;
+    const FeatureOptions& g = configs[0].features;
+    if (f.type != g.type || f.num_features != g.num_features || f.orb_num_levels != g.orb_num_levels ||
+        f.orb_scale_factor != g.orb_scale_factor) {
+      throw std::invalid_argument("all --preset files must use the same features");
+    }
+  }
   auto t0 = std::chrono::steady_clock::now();
   const auto vocab = Vocabulary::Load(a.vocab);
   const double vocab_load_ms = Ms(std::chrono::steady_clock::now() - t0);
-  const BowEncoder enc(*vocab, c.bow);
+  if (a.checks > 0) vocab->set_checks(a.checks);
   ImageSource db_src = ImageSource::FromDataset(a.dataset, a.split);
   db_src.Subsample(a.max_images);
-  const auto feats = ExtractAll(db_src, c.features, a.threads, !a.quiet);
+  const auto feats = ExtractAll(db_src, configs[0].features, a.threads, !a.quiet);
+  for (size_t i = 0; i < configs.size(); ++i) {
+    RunOne(a, a.presets.empty() ? std::string("defaults") : a.presets[i], configs[i], vocab.get(),
+           vocab_load_ms, db_src, feats);
+  }
+}
+
+void RunOne(const BenchArgs& a, const std::string& preset, const RetrievalConfig& c,
+            const Vocabulary* vocab, double vocab_load_ms, const ImageSource& db_src,
+            const std::vector<ImageFeatures>& feats) {
+  const BowEncoder enc(*vocab, c.bow);
+  auto t0 = std::chrono::steady_clock::now();
 
   // BoW transform of the database on all cores, then timed single-threaded insertion.
   std::vector<BowVector> vecs(feats.size());
@@ -161,7 +187,7 @@ void RunBench(const BenchArgs& a) {
     std::snprintf(buf, sizeof(buf), fmt, args...);
     md += buf;
   };
-  line("## Retrieval timing: %s (preset %s)\n\n", paper.name, a.preset.empty() ? "defaults" : a.preset.c_str());
+  line("## Retrieval timing: %s (preset %s)\n\n", paper.name, preset.c_str());
   line("Database: %zu images of `%s` (split `%s`), vocabulary %s/%s with %u words; %zu queries, "
        "one thread; times in ms.\n\n",
        db.size(), a.dataset.c_str(), a.split.c_str(), VocabularyKindName(vocab->kind()).c_str(),
@@ -187,12 +213,13 @@ void RegisterBenchRetrieval(CLI::App& app) {
   auto a = std::make_shared<BenchArgs>();
   CLI::App* cmd = app.add_subcommand("bench-retrieval", "Time extraction, transform, insertion and query (the paper's Table II)");
   cmd->add_option("--vocab", a->vocab, "Vocabulary file (gtbow train-vocab)")->required();
-  cmd->add_option("--preset", a->preset, "Retrieval configuration YAML; default: high accuracy");
+  cmd->add_option("--preset", a->presets, "Retrieval configuration YAML (repeatable, same features); default: high accuracy");
   cmd->add_option("--dataset", a->dataset, "Dataset directory")->required();
   cmd->add_option("--split", a->split, "Split that forms the database")->capture_default_str();
   cmd->add_option("--query-split", a->query_split, "Split to draw queries from (default: the database split)");
   cmd->add_option("--queries", a->queries, "Number of random queries")->capture_default_str();
   cmd->add_option("--max-images", a->max_images, "Use at most this many database images");
+  cmd->add_option("--checks", a->checks, "Override the vocabulary's ANN checks per descriptor");
   cmd->add_option("-j,--threads", a->threads, "Threads for the database build, 0 = all cores");
   cmd->add_option("--markdown", a->markdown, "Append the table to this Markdown file");
   cmd->add_flag("-q,--quiet", a->quiet, "No progress bars");

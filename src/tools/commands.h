@@ -10,6 +10,7 @@ namespace tools {
 void RegisterSynth(CLI::App& app);
 void RegisterTrainVocab(CLI::App& app);
 void RegisterBenchRetrieval(CLI::App& app);
+void RegisterEvalRetrieval(CLI::App& app);
 
 }  // namespace tools
 }  // namespace gtbow

@@ -71,6 +71,10 @@ class Vocabulary {
   // reference for measuring how often Assign's approximate first word agrees.
   virtual void AssignExact(const cv::Mat& descriptors, std::vector<WordHit>* out) const = 0;
 
+  // Overrides the ANN search effort (leaves checked per descriptor) of an AKM vocabulary; no
+  // effect on HKM. Not thread-safe with concurrent Assign calls.
+  virtual void set_checks(int /*checks*/) {}
+
   // Inverse document frequency of each word, log(N / n_w) over the N training images
   // (0 for words no training image has).
   const std::vector<float>& idf() const { return idf_; }
