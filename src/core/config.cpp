@@ -75,6 +75,8 @@ std::map<std::string, std::map<std::string, Setter>> Schema(RetrievalConfig* c) 
         {"kmeans_iterations", Set(&v.kmeans_iterations)},
         {"num_trees", Set(&v.num_trees)},
         {"checks", Set(&v.checks)},
+        {"ann", SetEnum(&v.ann, &ParseAnnIndex)},
+        {"nprobe", Set(&v.nprobe)},
         {"hkm_branching", Set(&v.hkm_branching)},
         {"hkm_depth", Set(&v.hkm_depth)},
         {"seed", SetUint64(&v.seed)},
@@ -160,6 +162,8 @@ std::string FormatRetrievalConfig(const RetrievalConfig& c) {
     << "  kmeans_iterations: " << v.kmeans_iterations << "\n"
     << "  num_trees: " << v.num_trees << "\n"
     << "  checks: " << v.checks << "\n"
+    << "  ann: " << AnnIndexName(v.ann) << "\n"
+    << "  nprobe: " << v.nprobe << "\n"
     << "  hkm_branching: " << v.hkm_branching << "\n"
     << "  hkm_depth: " << v.hkm_depth << "\n"
     << "  seed: " << v.seed << "\n"

@@ -106,6 +106,118 @@ cv::Mat ToSpace(const cv::Mat& desc, Metric metric) {
 }
 
 // ---------------------------------------------------------------------------------------------
+// IVF: an inverted file over the words (float vectors under L2).
+
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+#define GTBOW_VOCAB_CLONE __attribute__((target_clones("avx2", "default")))
+#else
+#define GTBOW_VOCAB_CLONE
+#endif
+
+void UpdateCentroids(const cv::Mat& data, const std::vector<uint32_t>& label, cv::Mat* centroids,
+                     std::mt19937_64& rng, int threads);
+
+// Squared L2 distances from `q` to `n` contiguous rows of dimension `d`. Eight partial sums
+// in a fixed order let the compiler vectorise without reassociating (results are identical on
+// every CPU).
+GTBOW_VOCAB_CLONE
+void SquaredDistances(const float* __restrict q, const float* __restrict rows, int n, int d,
+                      float* __restrict out) {
+  const int d8 = d & ~7;
+  for (int i = 0; i < n; ++i) {
+    const float* r = rows + static_cast<size_t>(i) * d;
+    float acc[8] = {0, 0, 0, 0, 0, 0, 0, 0};
+    for (int k = 0; k < d8; k += 8) {
+      for (int j = 0; j < 8; ++j) {
+        const float x = q[k + j] - r[k + j];
+        acc[j] += x * x;
+      }
+    }
+    float s = ((acc[0] + acc[4]) + (acc[1] + acc[5])) + ((acc[2] + acc[6]) + (acc[3] + acc[7]));
+    for (int k = d8; k < d; ++k) {
+      const float x = q[k] - r[k];
+      s += x * x;
+    }
+    out[i] = s;
+  }
+}
+
+class IvfIndex {
+ public:
+  // Groups the rows of `words` (V x d, CV_32F) around about sqrt(V) coarse centres.
+  IvfIndex(const cv::Mat& words, uint64_t seed, int threads) : d_(words.cols) {
+    const int v = words.rows;
+    const int nlist = std::max(1, static_cast<int>(std::lround(std::sqrt(static_cast<double>(v)))));
+    std::mt19937_64 rng(seed ^ 0x1f1f);
+    std::vector<int> order(v);
+    std::iota(order.begin(), order.end(), 0);
+    std::shuffle(order.begin(), order.end(), rng);
+    coarse_.create(nlist, d_, CV_32F);
+    for (int c = 0; c < nlist; ++c) words.row(order[c]).copyTo(coarse_.row(c));
+    std::vector<uint32_t> label(v);
+    for (int it = 0; it < 8; ++it) {
+      ParallelChunks(static_cast<size_t>(v), ThreadCount(threads), [&](size_t b, size_t e, int) {
+        std::vector<float> dist(nlist);
+        for (size_t i = b; i < e; ++i) {
+          SquaredDistances(words.ptr<float>(static_cast<int>(i)), coarse_.ptr<float>(), nlist, d_, dist.data());
+          label[i] = static_cast<uint32_t>(std::min_element(dist.begin(), dist.end()) - dist.begin());
+        }
+      });
+      UpdateCentroids(words, label, &coarse_, rng, 1);
+    }
+    // Lists: word ids grouped by coarse centre, with their vectors stored contiguously.
+    offsets_.assign(nlist + 1, 0);
+    for (uint32_t l : label) ++offsets_[l + 1];
+    for (int c = 0; c < nlist; ++c) offsets_[c + 1] += offsets_[c];
+    ids_.resize(v);
+    std::vector<uint32_t> fill(offsets_.begin(), offsets_.end() - 1);
+    for (int i = 0; i < v; ++i) ids_[fill[label[i]]++] = static_cast<uint32_t>(i);
+    vectors_.create(v, d_, CV_32F);
+    for (int i = 0; i < v; ++i) words.row(static_cast<int>(ids_[i])).copyTo(vectors_.row(i));
+  }
+
+  // The r nearest words of each row of `q` among the lists of its `nprobe` nearest centres.
+  void Search(const cv::Mat& q, int r, int nprobe, std::vector<WordHit>* out) const {
+    const int nlist = coarse_.rows;
+    nprobe = std::min(nprobe, nlist);
+    out->assign(static_cast<size_t>(q.rows) * r, WordHit{0, std::numeric_limits<float>::max()});
+    std::vector<float> cd(nlist);
+    std::vector<int> probe(nlist);
+    std::vector<float> dist;
+    for (int i = 0; i < q.rows; ++i) {
+      const float* x = q.ptr<float>(i);
+      SquaredDistances(x, coarse_.ptr<float>(), nlist, d_, cd.data());
+      std::iota(probe.begin(), probe.end(), 0);
+      std::partial_sort(probe.begin(), probe.begin() + nprobe, probe.end(),
+                        [&](int a, int b) { return cd[a] < cd[b]; });
+      WordHit* best = out->data() + static_cast<size_t>(i) * r;  // sorted, squared for now
+      for (int p = 0; p < nprobe; ++p) {
+        const uint32_t b = offsets_[probe[p]], e = offsets_[probe[p] + 1];
+        dist.resize(e - b);
+        SquaredDistances(x, vectors_.ptr<float>(static_cast<int>(b)), static_cast<int>(e - b), d_, dist.data());
+        for (uint32_t k = 0; k < e - b; ++k) {
+          if (dist[k] >= best[r - 1].distance) continue;
+          int j = r - 1;
+          while (j > 0 && best[j - 1].distance > dist[k]) {
+            best[j] = best[j - 1];
+            --j;
+          }
+          best[j] = {ids_[b + k], dist[k]};
+        }
+      }
+      for (int j = 0; j < r; ++j) best[j].distance = std::sqrt(std::max(0.0f, best[j].distance));
+    }
+  }
+
+ private:
+  int d_;
+  cv::Mat coarse_;                 // nlist x d centres
+  std::vector<uint32_t> offsets_;  // list c holds rows [offsets_[c], offsets_[c + 1])
+  std::vector<uint32_t> ids_;      // word id of each row of vectors_
+  cv::Mat vectors_;                // V x d word vectors grouped by list
+};
+
+// ---------------------------------------------------------------------------------------------
 // AKM: flat k-means with approximate assignment (Philbin et al. 2007, paper §II-C).
 
 template <typename Space>
@@ -115,7 +227,6 @@ class AkmVocabulary : public Vocabulary {
 
   AkmVocabulary(Metric metric, cv::Mat centroids, int trees, int checks)
       : metric_(metric), centroids_(std::move(centroids)), trees_(trees), checks_(checks) {
-    BuildIndex(0);
     fingerprint_ = Checksum64(centroids_.data, centroids_.total() * centroids_.elemSize());
   }
 
@@ -126,6 +237,18 @@ class AkmVocabulary : public Vocabulary {
   void set_checks(int checks) override {
     if (checks < 1) throw std::invalid_argument("checks must be >= 1");
     checks_ = checks;
+  }
+  void set_search(AnnIndex ann, int nprobe) override {
+    if (nprobe < 1) throw std::invalid_argument("nprobe must be >= 1");
+    nprobe_ = nprobe;
+    ann_ = ann;
+    if (ann == AnnIndex::kIvf && !ivf_) {
+      if constexpr (std::is_same<Space, FloatSpace>::value) {
+        ivf_ = std::make_unique<IvfIndex>(centroids_, 1, 0);
+      } else {
+        ann_ = AnnIndex::kFlann;  // binary descriptors: the Hamming tree only
+      }
+    }
   }
 
   void Assign(const cv::Mat& descriptors, int r, std::vector<WordHit>* out) const override {
@@ -138,7 +261,11 @@ class AkmVocabulary : public Vocabulary {
                                   " does not match the vocabulary's " +
                                   std::to_string(centroids_.cols));
     }
-    Search(q, r, out);
+    if (ann_ == AnnIndex::kIvf && ivf_) {
+      ivf_->Search(q, r, nprobe_, out);
+    } else {
+      Search(q, r, out);
+    }
   }
 
   void AssignExact(const cv::Mat& descriptors, std::vector<WordHit>* out) const override {
@@ -168,6 +295,10 @@ class AkmVocabulary : public Vocabulary {
     flann::Matrix<DT> md(dist.data(), q.rows, r);
     flann::SearchParams params(checks_);
     params.cores = 1;
+    {
+      // Built on first use: a vocabulary searched through the IVF index never needs it.
+      std::call_once(index_once_, [this]() { const_cast<AkmVocabulary*>(this)->BuildIndex(0); });
+    }
     index_->knnSearch(queries, mi, md, r, params);
     out->resize(idx.size());
     for (size_t i = 0; i < idx.size(); ++i) {
@@ -206,6 +337,10 @@ class AkmVocabulary : public Vocabulary {
   int trees_;
   int checks_;
   std::unique_ptr<typename Space::FlannIndex> index_;
+  mutable std::once_flag index_once_;
+  AnnIndex ann_ = AnnIndex::kFlann;
+  int nprobe_ = 8;
+  std::unique_ptr<IvfIndex> ivf_;
 };
 
 // Recomputes centroid c from its members: the mean (float) or the bitwise majority (binary).
@@ -536,6 +671,14 @@ std::unique_ptr<Vocabulary> TrainHkm(const VocabularyOptions& o, const cv::Mat& 
 
 }  // namespace
 
+AnnIndex ParseAnnIndex(const std::string& name) {
+  if (name == "flann") return AnnIndex::kFlann;
+  if (name == "ivf") return AnnIndex::kIvf;
+  throw std::invalid_argument("unknown ann index '" + name + "' (valid: flann, ivf)");
+}
+
+std::string AnnIndexName(AnnIndex index) { return index == AnnIndex::kFlann ? "flann" : "ivf"; }
+
 VocabularyKind ParseVocabularyKind(const std::string& name) {
   if (name == "akm") return VocabularyKind::kAkm;
   if (name == "hkm") return VocabularyKind::kHkm;
@@ -570,6 +713,7 @@ void VocabularyOptions::Check() const {
   need(kmeans_iterations >= 1, "kmeans_iterations must be >= 1");
   need(num_trees >= 1 && num_trees <= 64, "num_trees must be in 1..64");
   need(checks >= 1, "checks must be >= 1");
+  need(nprobe >= 1, "nprobe must be >= 1");
   need(hkm_branching >= 2, "hkm_branching must be >= 2");
   need(hkm_depth >= 1 && hkm_depth <= 12, "hkm_depth must be in 1..12");
   need(threads >= 0, "threads must be >= 0");
@@ -609,6 +753,7 @@ std::unique_ptr<Vocabulary> TrainVocabulary(const VocabularyOptions& o, const cv
     if (df[w] > 0) idf[w] = static_cast<float>(std::log(static_cast<double>(num_images) / df[w]));
   }
   vocab->set_idf(std::move(idf));
+  vocab->set_search(o.ann, o.nprobe);
   return vocab;
 }
 

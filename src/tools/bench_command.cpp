@@ -38,6 +38,8 @@ struct BenchArgs {
   size_t queries = 100;
   size_t max_images = 0;
   int checks = 0;
+  int nprobe = 0;
+  std::string ann;
   int threads = 0;
   std::string markdown;
   bool quiet = false;
@@ -74,13 +76,16 @@ constexpr PaperRow kHigh = {"Ours (High Acc.)", {18.9, 2.5}, {24, 0.3}, {1.4, 0.
 constexpr PaperRow kFast = {"Ours (Fast)", {18.9, 2.5}, {23.1, 0.3}, {0.6, 0.4}, {31.9, 3.7}};
 
 void RunOne(const BenchArgs& a, const std::string& preset, const RetrievalConfig& c,
-            const Vocabulary* vocab, double vocab_load_ms, const ImageSource& db_src,
+            Vocabulary* vocab, double vocab_load_ms, const ImageSource& db_src,
             const std::vector<ImageFeatures>& feats);
 
 void RunBench(const BenchArgs& a) {
   std::vector<RetrievalConfig> configs;
   for (const auto& p : a.presets) configs.push_back(LoadRetrievalConfig(p));
   if (configs.empty()) configs.emplace_back();
+  if (!a.ann.empty()) {
+    for (auto& c : configs) c.vocabulary.ann = ParseAnnIndex(a.ann);
+  }
   for (const auto& c : configs) {
     const FeatureOptions& f = c.features;
     const FeatureOptions& g = configs[0].features;
@@ -103,8 +108,11 @@ void RunBench(const BenchArgs& a) {
 }
 
 void RunOne(const BenchArgs& a, const std::string& preset, const RetrievalConfig& c,
-            const Vocabulary* vocab, double vocab_load_ms, const ImageSource& db_src,
+            Vocabulary* vocab, double vocab_load_ms, const ImageSource& db_src,
             const std::vector<ImageFeatures>& feats) {
+  auto ts = std::chrono::steady_clock::now();
+  vocab->set_search(c.vocabulary.ann, a.nprobe > 0 ? a.nprobe : c.vocabulary.nprobe);
+  const double search_setup_ms = Ms(std::chrono::steady_clock::now() - ts);
   const BowEncoder enc(*vocab, c.bow);
   auto t0 = std::chrono::steady_clock::now();
 
@@ -200,7 +208,10 @@ void RunOne(const BenchArgs& a, const std::string& preset, const RetrievalConfig
   line("| database query | %.1f ± %.1f | %.2f ± %.2f | %.2f | %.2f |\n\n", paper.query[0], paper.query[1], qu.mean, qu.sd, qu.median, qu.p95);
   line("- first-word agreement with the exact nearest word: %.1f%% of %zu descriptors\n", 100.0 * agree / std::max<size_t>(1, approx.size()), approx.size());
   line("- index memory: %.2f KB per image (%.1f MB in all)\n", mem / 1024.0 / std::max<size_t>(1, db.size()), mem / 1e6);
-  line("- map file: %.1f MB; save %.0f ms; load %.0f ms; vocabulary load %.0f ms\n", file_bytes / 1e6, save_ms, load_ms, vocab_load_ms);
+  line("- map file: %.1f MB; save %.0f ms; load %.0f ms; vocabulary load %.0f ms (+ %.0f ms search index)\n", file_bytes / 1e6, save_ms, load_ms, vocab_load_ms, search_setup_ms);
+  line("- word search: %s (%s)\n", AnnIndexName(c.vocabulary.ann).c_str(),
+       c.vocabulary.ann == AnnIndex::kIvf ? ("nprobe " + std::to_string(a.nprobe > 0 ? a.nprobe : c.vocabulary.nprobe)).c_str()
+                                          : ("checks " + std::to_string(a.checks > 0 ? a.checks : c.vocabulary.checks)).c_str());
   std::fputs(md.c_str(), stdout);
   if (!a.markdown.empty()) {
     std::ofstream(a.markdown, std::ios::app) << md << "\n";
@@ -219,7 +230,9 @@ void RegisterBenchRetrieval(CLI::App& app) {
   cmd->add_option("--query-split", a->query_split, "Split to draw queries from (default: the database split)");
   cmd->add_option("--queries", a->queries, "Number of random queries")->capture_default_str();
   cmd->add_option("--max-images", a->max_images, "Use at most this many database images");
-  cmd->add_option("--checks", a->checks, "Override the vocabulary's ANN checks per descriptor");
+  cmd->add_option("--checks", a->checks, "Override the vocabulary's kd-tree checks per descriptor");
+  cmd->add_option("--ann", a->ann, "Override the word search: flann or ivf");
+  cmd->add_option("--nprobe", a->nprobe, "Override the IVF lists searched per descriptor");
   cmd->add_option("-j,--threads", a->threads, "Threads for the database build, 0 = all cores");
   cmd->add_option("--markdown", a->markdown, "Append the table to this Markdown file");
   cmd->add_flag("-q,--quiet", a->quiet, "No progress bars");

@@ -53,6 +53,7 @@ std::vector<BowVector> EncodeAll(const BowEncoder& enc, const std::vector<ImageF
 void RunEval(const EvalArgs& a) {
   const RetrievalConfig c = a.preset.empty() ? RetrievalConfig{} : LoadRetrievalConfig(a.preset);
   const auto vocab = Vocabulary::Load(a.vocab);
+  vocab->set_search(c.vocabulary.ann, c.vocabulary.nprobe);
   const BowEncoder enc(*vocab, c.bow);
   const Dataset ds = Dataset::Load(a.dataset);
   const ImageGeometry geo = ds.info().geometry;

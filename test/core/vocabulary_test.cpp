@@ -100,6 +100,34 @@ TEST(Vocabulary, AkmRecoversPlantedClustersInBothOrbMetrics) {
   }
 }
 
+TEST(Vocabulary, IvfSearchAgreesWithExactNearestWord) {
+  // 400 words from 4000 ORB-like byte vectors; queries are fresh samples.
+  const Planted train = MakeBytesL2(400, 10, 20.0, 7);
+  VocabularyOptions o;
+  o.num_words = 400;
+  o.kmeans_iterations = 3;
+  auto v = TrainVocabulary(o, train.data, train.image, false);
+  const Planted query = MakeBytesL2(400, 2, 20.0, 7);
+  std::vector<WordHit> exact, approx;
+  v->AssignExact(query.data, &exact);
+  auto agreement = [&](AnnIndex ann, int nprobe) {
+    v->set_search(ann, nprobe);
+    v->Assign(query.data, 3, &approx);
+    int same = 0;
+    for (size_t i = 0; i < exact.size(); ++i) {
+      same += approx[3 * i].word == exact[i].word ? 1 : 0;
+      EXPECT_LE(approx[3 * i].distance, approx[3 * i + 1].distance);  // sorted
+    }
+    return double(same) / exact.size();
+  };
+  EXPECT_DOUBLE_EQ(agreement(AnnIndex::kIvf, 20), 1.0);  // all 20 lists: exhaustive
+  const double half = agreement(AnnIndex::kIvf, 10);
+  const double kd = agreement(AnnIndex::kFlann, 64);
+  std::printf("first-word agreement: ivf nprobe 10 of 20: %.3f, flann checks 64: %.3f\n", half, kd);
+  EXPECT_GT(half, 0.9);
+  EXPECT_GT(kd, 0.5);
+}
+
 TEST(Vocabulary, HkmRecoversPlantedClustersAndBuildsATree) {
   VocabularyOptions o;
   o.kind = VocabularyKind::kHkm;
