@@ -27,7 +27,7 @@ namespace gtbow {
 namespace {
 
 constexpr char kVocabularyMagic[8] = {'G', 'T', 'B', 'W', 'V', 'O', 'C', '\0'};
-constexpr uint32_t kVocabularyVersion = 1;
+constexpr uint32_t kVocabularyVersion = 2;  // 2: IVF lists stored with AKM words
 
 int ThreadCount(int requested) {
   return requested > 0 ? requested
@@ -176,6 +176,36 @@ class IvfIndex {
     for (int i = 0; i < v; ++i) words.row(static_cast<int>(ids_[i])).copyTo(vectors_.row(i));
   }
 
+  // Restores an index saved by Save() for the words `words`; throws via `r` when inconsistent.
+  IvfIndex(const cv::Mat& words, BinaryReader* r) : d_(words.cols) {
+    const int32_t nlist = r->Get<int32_t>();
+    if (nlist < 1 || nlist > words.rows) r->Fail("invalid IVF header");
+    auto coarse = r->GetVector<float>(static_cast<uint64_t>(nlist) * d_);
+    offsets_ = r->GetVector<uint32_t>(static_cast<uint64_t>(nlist) + 1);
+    ids_ = r->GetVector<uint32_t>(static_cast<uint64_t>(words.rows));
+    if (coarse.size() != static_cast<size_t>(nlist) * d_ || offsets_.size() != static_cast<size_t>(nlist) + 1 ||
+        ids_.size() != static_cast<size_t>(words.rows) || offsets_.front() != 0 ||
+        offsets_.back() != static_cast<uint32_t>(words.rows)) {
+      r->Fail("invalid IVF lists");
+    }
+    for (int c = 0; c < nlist; ++c) {
+      if (offsets_[c] > offsets_[c + 1]) r->Fail("invalid IVF lists");
+    }
+    for (uint32_t id : ids_) {
+      if (id >= static_cast<uint32_t>(words.rows)) r->Fail("invalid IVF word id");
+    }
+    coarse_ = cv::Mat(nlist, d_, CV_32F, coarse.data()).clone();
+    vectors_.create(words.rows, d_, CV_32F);
+    for (int i = 0; i < words.rows; ++i) words.row(static_cast<int>(ids_[i])).copyTo(vectors_.row(i));
+  }
+
+  void Save(BinaryWriter* w) const {
+    w->Put<int32_t>(coarse_.rows);
+    w->PutArray(coarse_.ptr<float>(), coarse_.total());
+    w->PutVector(offsets_);
+    w->PutVector(ids_);
+  }
+
   // The r nearest words of each row of `q` among the lists of its `nprobe` nearest centres.
   void Search(const cv::Mat& q, int r, int nprobe, std::vector<WordHit>* out) const {
     const int nlist = coarse_.rows;
@@ -316,7 +346,23 @@ class AkmVocabulary : public Vocabulary {
     w->Put<int32_t>(trees_);
     w->Put<int32_t>(checks_);
     w->PutArray(centroids_.ptr<E>(), centroids_.total());
+    // The IVF lists, when built, so that loading does not cluster the words again.
+    w->Put<uint8_t>(ivf_ ? 1 : 0);
+    if (ivf_) ivf_->Save(w);
   }
+
+  // Restores IVF lists saved with the words (float vocabularies only).
+ public:
+  void LoadIvf(BinaryReader* r) {
+    if constexpr (std::is_same<Space, FloatSpace>::value) {
+      ivf_ = std::make_unique<IvfIndex>(centroids_, r);
+      ann_ = AnnIndex::kIvf;
+    } else {
+      r->Fail("IVF lists in a binary vocabulary");
+    }
+  }
+
+ protected:
 
  private:
   void BuildIndex(uint64_t seed) {
@@ -783,12 +829,16 @@ std::unique_ptr<Vocabulary> MakeVocabularyFromFile(BinaryReader* r, VocabularyKi
       auto v = r->GetVector<unsigned char>(kMaxWords * 64);
       if (v.size() != static_cast<size_t>(rows) * cols) r->Fail("centroid count mismatch");
       cv::Mat c(rows, cols, CV_8U, v.data());
-      return std::make_unique<AkmVocabulary<BinarySpace>>(metric, c.clone(), trees, checks);
+      auto vocab = std::make_unique<AkmVocabulary<BinarySpace>>(metric, c.clone(), trees, checks);
+      if (r->Get<uint8_t>() != 0) vocab->LoadIvf(r);
+      return vocab;
     }
     auto v = r->GetVector<float>(kMaxWords * 128);
     if (v.size() != static_cast<size_t>(rows) * cols) r->Fail("centroid count mismatch");
     cv::Mat c(rows, cols, CV_32F, v.data());
-    return std::make_unique<AkmVocabulary<FloatSpace>>(metric, c.clone(), trees, checks);
+    auto vocab = std::make_unique<AkmVocabulary<FloatSpace>>(metric, c.clone(), trees, checks);
+    if (r->Get<uint8_t>() != 0) vocab->LoadIvf(r);
+    return vocab;
   }
   auto read_tree = [&](auto space_tag) -> std::unique_ptr<Vocabulary> {
     using Space = decltype(space_tag);

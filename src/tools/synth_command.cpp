@@ -48,7 +48,9 @@ void RunSynth(SynthArgs& a) {
   for (const auto& [split, n] : s.split_sizes) {
     std::printf("  %-14s %7zu images\n", split.c_str(), n);
   }
-  std::printf("  mean overlap of database neighbours: %.1f%%\n", 100.0 * s.mean_neighbour_overlap);
+  if (s.split_sizes.count("database") > 0) {
+    std::printf("  mean overlap of database neighbours: %.1f%%\n", 100.0 * s.mean_neighbour_overlap);
+  }
   std::printf("  %zu images, %.1f MB, in %.1f s (%.1f images/s)\n", s.images, s.bytes / 1e6,
               s.seconds, s.images / std::max(1e-9, s.seconds));
 }

@@ -126,6 +126,18 @@ TEST(Vocabulary, IvfSearchAgreesWithExactNearestWord) {
   std::printf("first-word agreement: ivf nprobe 10 of 20: %.3f, flann checks 64: %.3f\n", half, kd);
   EXPECT_GT(half, 0.9);
   EXPECT_GT(kd, 0.5);
+  // The IVF lists travel with the vocabulary file: the loaded one answers identically.
+  v->set_search(AnnIndex::kIvf, 10);
+  v->Assign(query.data, 3, &approx);
+  const fs::path f = fs::temp_directory_path() / ("gtbow_ivf_" + std::to_string(::getpid()) + ".gtvoc");
+  v->Save(f);
+  auto back = Vocabulary::Load(f);
+  fs::remove(f);
+  back->set_search(AnnIndex::kIvf, 10);
+  std::vector<WordHit> again;
+  back->Assign(query.data, 3, &again);
+  ASSERT_EQ(again.size(), approx.size());
+  for (size_t i = 0; i < again.size(); ++i) ASSERT_EQ(again[i].word, approx[i].word);
 }
 
 TEST(Vocabulary, HkmRecoversPlantedClustersAndBuildsATree) {
