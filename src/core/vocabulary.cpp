@@ -207,39 +207,53 @@ class IvfIndex {
   }
 
   // The r nearest words of each row of `q` among the lists of its `nprobe` nearest centres.
+  // Work is grouped by list, so each list's vectors are read from memory once per batch
+  // rather than once per descriptor (the scan is memory-bound otherwise).
   void Search(const cv::Mat& q, int r, int nprobe, std::vector<WordHit>* out) const {
     const int nlist = coarse_.rows;
     nprobe = std::min(nprobe, nlist);
     out->assign(static_cast<size_t>(q.rows) * r, WordHit{0, std::numeric_limits<float>::max()});
     std::vector<float> cd(nlist);
     std::vector<int> probe(nlist);
-    std::vector<float> dist;
+    // list -> descriptors probing it
+    std::vector<std::vector<int>> visitors(nlist);
     for (int i = 0; i < q.rows; ++i) {
-      const float* x = q.ptr<float>(i);
-      SquaredDistances(x, coarse_.ptr<float>(), nlist, d_, cd.data());
+      SquaredDistances(q.ptr<float>(i), coarse_.ptr<float>(), nlist, d_, cd.data());
       std::iota(probe.begin(), probe.end(), 0);
       std::partial_sort(probe.begin(), probe.begin() + nprobe, probe.end(),
-                        [&](int a, int b) { return cd[a] < cd[b]; });
-      WordHit* best = out->data() + static_cast<size_t>(i) * r;  // sorted, squared for now
-      for (int p = 0; p < nprobe; ++p) {
-        const uint32_t b = offsets_[probe[p]], e = offsets_[probe[p] + 1];
-        dist.resize(e - b);
-        SquaredDistances(x, vectors_.ptr<float>(static_cast<int>(b)), static_cast<int>(e - b), d_, dist.data());
+                        [&](int a, int b) { return cd[a] != cd[b] ? cd[a] < cd[b] : a < b; });
+      for (int p = 0; p < nprobe; ++p) visitors[probe[p]].push_back(i);
+    }
+    std::vector<float> dist;
+    for (int list = 0; list < nlist; ++list) {
+      if (visitors[list].empty()) continue;
+      const uint32_t b = offsets_[list], e = offsets_[list + 1];
+      dist.resize(e - b);
+      for (int i : visitors[list]) {
+        SquaredDistances(q.ptr<float>(i), vectors_.ptr<float>(static_cast<int>(b)),
+                         static_cast<int>(e - b), d_, dist.data());
+        WordHit* best = out->data() + static_cast<size_t>(i) * r;  // sorted, squared for now
         for (uint32_t k = 0; k < e - b; ++k) {
-          if (dist[k] >= best[r - 1].distance) continue;
+          const WordHit hit{ids_[b + k], dist[k]};
+          if (!Closer(hit, best[r - 1])) continue;
           int j = r - 1;
-          while (j > 0 && best[j - 1].distance > dist[k]) {
+          while (j > 0 && Closer(hit, best[j - 1])) {
             best[j] = best[j - 1];
             --j;
           }
-          best[j] = {ids_[b + k], dist[k]};
+          best[j] = hit;
         }
       }
-      for (int j = 0; j < r; ++j) best[j].distance = std::sqrt(std::max(0.0f, best[j].distance));
     }
+    for (auto& h : *out) h.distance = std::sqrt(std::max(0.0f, h.distance));
   }
 
  private:
+  // Order of hits: by distance, ties by word id (independent of the list visiting order).
+  static bool Closer(const WordHit& a, const WordHit& b) {
+    return a.distance != b.distance ? a.distance < b.distance : a.word < b.word;
+  }
+
   int d_;
   cv::Mat coarse_;                 // nlist x d centres
   std::vector<uint32_t> offsets_;  // list c holds rows [offsets_[c], offsets_[c + 1])
