@@ -117,22 +117,7 @@ void RunOne(const BenchArgs& a, const std::string& preset, const RetrievalConfig
   auto t0 = std::chrono::steady_clock::now();
 
   // BoW transform of the database on all cores, then timed single-threaded insertion.
-  std::vector<BowVector> vecs(feats.size());
-  {
-    ProgressBar bar("transform", feats.size(), !a.quiet);
-    const int nt = a.threads > 0 ? a.threads : static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
-    std::vector<std::thread> pool;
-    std::atomic<size_t> next{0};
-    for (int t = 0; t < nt; ++t) {
-      pool.emplace_back([&]() {
-        for (size_t i; (i = next.fetch_add(1)) < feats.size();) {
-          vecs[i] = enc.Encode(feats[i]);
-          bar.Add();
-        }
-      });
-    }
-    for (auto& t : pool) t.join();
-  }
+  const std::vector<BowVector> vecs = EncodeAll(enc, feats, a.threads, !a.quiet);
   BowDatabase db(enc.num_rows(), c.bow, vocab->fingerprint());
   std::vector<double> insert_ms;
   insert_ms.reserve(vecs.size());

@@ -31,25 +31,6 @@ struct EvalArgs {
   bool quiet = false;
 };
 
-std::vector<BowVector> EncodeAll(const BowEncoder& enc, const std::vector<ImageFeatures>& f,
-                                 int threads, bool progress) {
-  std::vector<BowVector> out(f.size());
-  ProgressBar bar("transform", f.size(), progress);
-  const int nt = threads > 0 ? threads : static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
-  std::atomic<size_t> next{0};
-  std::vector<std::thread> pool;
-  for (int t = 0; t < nt; ++t) {
-    pool.emplace_back([&]() {
-      for (size_t i; (i = next.fetch_add(1)) < f.size();) {
-        out[i] = enc.Encode(f[i]);
-        bar.Add();
-      }
-    });
-  }
-  for (auto& t : pool) t.join();
-  return out;
-}
-
 void RunEval(const EvalArgs& a) {
   const RetrievalConfig c = a.preset.empty() ? RetrievalConfig{} : LoadRetrievalConfig(a.preset);
   const auto vocab = Vocabulary::Load(a.vocab);

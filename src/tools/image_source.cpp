@@ -90,5 +90,24 @@ std::vector<ImageFeatures> ExtractAll(const ImageSource& source, const FeatureOp
   return out;
 }
 
+std::vector<BowVector> EncodeAll(const BowEncoder& encoder, const std::vector<ImageFeatures>& f,
+                                 int threads, bool progress) {
+  std::vector<BowVector> out(f.size());
+  ProgressBar bar("transform", f.size(), progress);
+  const int nt = threads > 0 ? threads : static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
+  std::atomic<size_t> next{0};
+  std::vector<std::thread> pool;
+  for (int t = 0; t < nt; ++t) {
+    pool.emplace_back([&]() {
+      for (size_t i; (i = next.fetch_add(1)) < f.size();) {
+        out[i] = encoder.Encode(f[i]);
+        bar.Add();
+      }
+    });
+  }
+  for (auto& t : pool) t.join();
+  return out;
+}
+
 }  // namespace tools
 }  // namespace gtbow

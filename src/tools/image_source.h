@@ -7,6 +7,7 @@
 #include <string>
 #include <vector>
 
+#include "ground_texture_bow/core/bow.h"
 #include "ground_texture_bow/core/dataset.h"
 #include "ground_texture_bow/core/features.h"
 
@@ -36,6 +37,10 @@ class ImageSource {
 // Extracts features of every image on `threads` threads (0 = all cores) with a progress bar.
 std::vector<ImageFeatures> ExtractAll(const ImageSource& source, const FeatureOptions& options,
                                       int threads, bool progress);
+
+// BoW vectors of every image's features on `threads` threads (0 = all cores).
+std::vector<BowVector> EncodeAll(const BowEncoder& encoder, const std::vector<ImageFeatures>& features,
+                                 int threads, bool progress);
 
 }  // namespace tools
 }  // namespace gtbow

@@ -87,4 +87,33 @@ TEST_F(GtbowCli, BadInputGivesAClearMessageAndNonZeroExit) {
   EXPECT_NE(r.code, 0);
 }
 
+TEST_F(GtbowCli, TrainEvaluateAndBenchmarkOnASyntheticFloor) {
+  const std::string d = Out("floor");
+  Result r = RunGtbow("synth --out " + d + " --area 0.4 0.3 --train 12 --queries 6 --days 0,90 -q");
+  ASSERT_EQ(r.code, 0) << r.output;
+  r = RunGtbow("train-vocab --dataset " + d + " --words 800 --out " + Out("v.gtvoc") + " -q");
+  ASSERT_EQ(r.code, 0) << r.output;
+  EXPECT_NE(r.output.find("800 words"), std::string::npos) << r.output;
+  r = RunGtbow("eval-retrieval --dataset " + d + " --vocab " + Out("v.gtvoc") + " -q");
+  ASSERT_EQ(r.code, 0) << r.output;
+  EXPECT_NE(r.output.find("| query_day090 | 6 |"), std::string::npos) << r.output;
+  r = RunGtbow("bench-retrieval --dataset " + d + " --vocab " + Out("v.gtvoc") +
+               " --preset " GTBOW_CONFIG_DIR "/fast.yaml --queries 5 -q");
+  ASSERT_EQ(r.code, 0) << r.output;
+  EXPECT_NE(r.output.find("| database query | 31.9"), std::string::npos) << r.output;
+
+  // Bad input: missing split, too many words, corrupt vocabulary file.
+  r = RunGtbow("train-vocab --dataset " + d + " --split nope --out " + Out("x.gtvoc") + " -q");
+  EXPECT_NE(r.code, 0);
+  EXPECT_NE(r.output.find("nope.txt does not exist"), std::string::npos) << r.output;
+  r = RunGtbow("train-vocab --dataset " + d + " --words 1000000 --out " + Out("x.gtvoc") + " -q");
+  EXPECT_NE(r.code, 0);
+  EXPECT_NE(r.output.find("fewer --words"), std::string::npos) << r.output;
+  EXPECT_FALSE(fs::exists(dir_ / "x.gtvoc"));
+  std::ofstream(dir_ / "bad.gtvoc") << "GTBWVOC junk";
+  r = RunGtbow("eval-retrieval --dataset " + d + " --vocab " + Out("bad.gtvoc") + " -q");
+  EXPECT_NE(r.code, 0);
+  EXPECT_NE(r.output.find("bad.gtvoc"), std::string::npos) << r.output;
+}
+
 }  // namespace
