@@ -138,6 +138,7 @@ void RunOne(const BenchArgs& a, const std::string& preset, const RetrievalConfig
   t0 = std::chrono::steady_clock::now();
   loaded.Load(tmp);
   const double load_ms = Ms(std::chrono::steady_clock::now() - t0);
+  const size_t loaded_mem = loaded.MemoryBytes();
   fs::remove(tmp);
 
   // Queries: random images of the query split (default: the database split itself).
@@ -192,7 +193,8 @@ void RunOne(const BenchArgs& a, const std::string& preset, const RetrievalConfig
   line("| database insertion | %.1f ± %.1f | %.3f ± %.3f | %.3f | %.3f |\n", paper.insert[0], paper.insert[1], in.mean, in.sd, in.median, in.p95);
   line("| database query | %.1f ± %.1f | %.2f ± %.2f | %.2f | %.2f |\n\n", paper.query[0], paper.query[1], qu.mean, qu.sd, qu.median, qu.p95);
   line("- first-word agreement with the exact nearest word: %.1f%% of %zu descriptors\n", 100.0 * agree / std::max<size_t>(1, approx.size()), approx.size());
-  line("- index memory: %.2f KB per image (%.1f MB in all)\n", mem / 1024.0 / std::max<size_t>(1, db.size()), mem / 1e6);
+  line("- index memory: %.2f KB per image (%.1f MB in all) after online insertion; %.2f KB per image after a reload\n",
+       mem / 1024.0 / std::max<size_t>(1, db.size()), mem / 1e6, loaded_mem / 1024.0 / std::max<size_t>(1, db.size()));
   line("- map file: %.1f MB; save %.0f ms; load %.0f ms; vocabulary load %.0f ms (+ %.0f ms search index)\n", file_bytes / 1e6, save_ms, load_ms, vocab_load_ms, search_setup_ms);
   line("- word search: %s (%s)\n", AnnIndexName(c.vocabulary.ann).c_str(),
        c.vocabulary.ann == AnnIndex::kIvf ? ("nprobe " + std::to_string(a.nprobe > 0 ? a.nprobe : c.vocabulary.nprobe)).c_str()
