@@ -10,6 +10,8 @@
 
 #include <gtest/gtest.h>
 
+#include "test_util.h"
+
 #include "ground_texture_bow/core/file_util.h"
 
 namespace fs = std::filesystem;
@@ -114,15 +116,7 @@ TEST(Database, RemoveAndTopN) {
   EXPECT_EQ(db.Add(Make({1}, {0.0f}, {{1, 1.0f}})), 5u);  // ids are not reused
 }
 
-class DatabaseFiles : public ::testing::Test {
- protected:
-  void SetUp() override {
-    dir_ = fs::temp_directory_path() / ("gtbow_db_" + std::to_string(::getpid()));
-    fs::create_directories(dir_);
-  }
-  void TearDown() override { fs::remove_all(dir_); }
-  fs::path dir_;
-};
+class DatabaseFiles : public testing_util::TempDirTest {};
 
 TEST_F(DatabaseFiles, RoundTripGivesIdenticalAnswersAndBadFilesAreRejected) {
   BowDatabase db(50, Ov(), 42);

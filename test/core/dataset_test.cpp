@@ -8,6 +8,8 @@
 #include <string>
 
 #include <gtest/gtest.h>
+
+#include "test_util.h"
 #include <opencv2/imgcodecs.hpp>
 
 #include "ground_texture_bow/core/file_util.h"
@@ -31,21 +33,16 @@ void ExpectError(F&& f, std::initializer_list<std::string> parts) {
   }
 }
 
-class TempDir : public ::testing::Test {
+class TempDir : public testing_util::TempDirTest {
  protected:
   void SetUp() override {
-    dir_ = fs::temp_directory_path() /
-           ("gtbow_dataset_test_" + std::to_string(::getpid()) + "_" +
-            ::testing::UnitTest::GetInstance()->current_test_info()->name());
-    fs::remove_all(dir_);
+    TempDirTest::SetUp();
     fs::create_directories(dir_ / "images");
     fs::create_directories(dir_ / "sequences");
   }
-  void TearDown() override { fs::remove_all(dir_); }
   void Write(const std::string& rel, const std::string& text) {
     std::ofstream(dir_ / rel, std::ios::binary) << text;
   }
-  fs::path dir_;
 };
 
 TEST(DatasetFormat, YamlRoundTrip) {

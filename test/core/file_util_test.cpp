@@ -8,24 +8,18 @@
 
 #include <gtest/gtest.h>
 
+#include "test_util.h"
+
 namespace fs = std::filesystem;
 
 namespace gtbow {
 namespace {
 
-class FileUtil : public ::testing::Test {
+class FileUtil : public testing_util::TempDirTest {
  protected:
-  void SetUp() override {
-    dir_ = fs::temp_directory_path() / ("gtbow_file_util_" + std::to_string(::getpid()) + "_" +
-                                        ::testing::UnitTest::GetInstance()->current_test_info()->name());
-    fs::remove_all(dir_);
-    fs::create_directories(dir_);
-  }
-  void TearDown() override { fs::remove_all(dir_); }
   size_t Entries(const fs::path& p) {
     return static_cast<size_t>(std::distance(fs::directory_iterator(p), fs::directory_iterator()));
   }
-  fs::path dir_;
 };
 
 TEST_F(FileUtil, AtomicWriteCreatesAndReplaces) {

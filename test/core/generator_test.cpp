@@ -9,6 +9,8 @@
 
 #include <gtest/gtest.h>
 
+#include "test_util.h"
+
 #include "ground_texture_bow/core/file_util.h"
 
 namespace fs = std::filesystem;
@@ -100,17 +102,7 @@ TEST(Generator, SquareAreaForImages) {
   }
 }
 
-class GeneratorFiles : public ::testing::Test {
- protected:
-  void SetUp() override {
-    dir_ = fs::temp_directory_path() / ("gtbow_gen_" + std::to_string(::getpid()) + "_" +
-                                        ::testing::UnitTest::GetInstance()->current_test_info()->name());
-    fs::remove_all(dir_);
-    fs::create_directories(dir_);
-  }
-  void TearDown() override { fs::remove_all(dir_); }
-  fs::path dir_;
-};
+class GeneratorFiles : public testing_util::TempDirTest {};
 
 TEST_F(GeneratorFiles, WritesALoadableDatasetByteIdenticallyForAnyThreadCount) {
   SynthOptions o = Small();

@@ -10,6 +10,8 @@
 
 #include <gtest/gtest.h>
 
+#include "test_util.h"
+
 namespace fs = std::filesystem;
 
 namespace {
@@ -32,17 +34,9 @@ Result RunGtbow(const std::string& args) {
   return r;
 }
 
-class GtbowCli : public ::testing::Test {
+class GtbowCli : public gtbow::testing_util::TempDirTest {
  protected:
-  void SetUp() override {
-    dir_ = fs::temp_directory_path() / ("gtbow_cli_" + std::to_string(::getpid()) + "_" +
-                                        ::testing::UnitTest::GetInstance()->current_test_info()->name());
-    fs::remove_all(dir_);
-    fs::create_directories(dir_);
-  }
-  void TearDown() override { fs::remove_all(dir_); }
   std::string Out(const std::string& name) { return (dir_ / name).string(); }
-  fs::path dir_;
 };
 
 const char* kSmall = "--train 2 --queries 2 --days 0,30 --width 128 --height 96 "

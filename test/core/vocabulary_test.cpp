@@ -11,6 +11,8 @@
 
 #include <gtest/gtest.h>
 
+#include "test_util.h"
+
 #include "ground_texture_bow/core/file_util.h"
 
 namespace fs = std::filesystem;
@@ -174,15 +176,7 @@ TEST(Vocabulary, IdfCountsTrainingImages) {
   EXPECT_NEAR(v->idf()[1 - common], std::log(2.0), 1e-6);   // log(10 / 5)
 }
 
-class VocabularyFiles : public ::testing::Test {
- protected:
-  void SetUp() override {
-    dir_ = fs::temp_directory_path() / ("gtbow_vocab_" + std::to_string(::getpid()));
-    fs::create_directories(dir_);
-  }
-  void TearDown() override { fs::remove_all(dir_); }
-  fs::path dir_;
-};
+class VocabularyFiles : public testing_util::TempDirTest {};
 
 TEST_F(VocabularyFiles, RoundTripAndCorruptFiles) {
   const Planted p = MakeBytesL2(8, 30, 6.0, 4);
