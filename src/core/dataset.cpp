@@ -246,8 +246,12 @@ std::vector<PoseRecord> ParsePosesCsv(const std::string& text, const std::string
   return out;
 }
 
-std::vector<std::string> ParseSequence(const std::string& text, const std::string& source) {
-  std::vector<std::string> out;
+namespace {
+
+// The names of a sequence file with the line each stands on.
+std::vector<std::pair<std::string, int>> ParseSequenceLines(const std::string& text,
+                                                            const std::string& source) {
+  std::vector<std::pair<std::string, int>> out;
   const auto lines = SplitLines(text);
   for (size_t i = 0; i < lines.size(); ++i) {
     std::string line = lines[i];
@@ -255,9 +259,18 @@ std::vector<std::string> ParseSequence(const std::string& text, const std::strin
     if (hash != std::string::npos) line.erase(hash);
     line = Trim(line);
     if (line.empty()) continue;
-    CheckImageName(line, source, static_cast<int>(i) + 1);
-    out.push_back(line);
+    const int lineno = static_cast<int>(i) + 1;
+    CheckImageName(line, source, lineno);
+    out.emplace_back(line, lineno);
   }
+  return out;
+}
+
+}  // namespace
+
+std::vector<std::string> ParseSequence(const std::string& text, const std::string& source) {
+  std::vector<std::string> out;
+  for (auto& [name, line] : ParseSequenceLines(text, source)) out.push_back(std::move(name));
   return out;
 }
 
@@ -358,21 +371,15 @@ std::vector<std::string> Dataset::Split(const std::string& split) const {
     throw std::runtime_error("split '" + split + "' not found: " + file.string() +
                              " does not exist");
   }
-  const std::string text = ReadFile(file);
-  auto names = ParseSequence(text, file.string());
-  if (names.empty()) throw std::runtime_error(file.string() + ": split '" + split + "' is empty");
-  // Locate unknown names by line for the error message.
-  const auto lines = SplitLines(text);
-  for (size_t i = 0, k = 0; i < lines.size() && k < names.size(); ++i) {
-    std::string line = lines[i];
-    const size_t hash = line.find('#');
-    if (hash != std::string::npos) line.erase(hash);
-    if (Trim(line).empty()) continue;
-    if (!HasImage(names[k])) {
-      Fail(file.string(), static_cast<int>(i) + 1,
-           "image '" + names[k] + "' has no pose in poses.csv");
+  const auto entries = ParseSequenceLines(ReadFile(file), file.string());
+  if (entries.empty()) throw std::runtime_error(file.string() + ": split '" + split + "' is empty");
+  std::vector<std::string> names;
+  names.reserve(entries.size());
+  for (const auto& [name, line] : entries) {
+    if (!HasImage(name)) {
+      Fail(file.string(), line, "image '" + name + "' has no pose in poses.csv");
     }
-    ++k;
+    names.push_back(name);
   }
   return names;
 }
