@@ -21,6 +21,7 @@
 
 #include "ground_texture_bow/core/binary_io.h"
 #include "ground_texture_bow/core/progress.h"
+#include "byte_distance.h"
 
 namespace gtbow {
 
@@ -145,7 +146,8 @@ void SquaredDistances(const float* __restrict q, const float* __restrict rows, i
 class IvfIndex {
  public:
   // Groups the rows of `words` (V x d, CV_32F) around about sqrt(V) coarse centres.
-  IvfIndex(const cv::Mat& words, uint64_t seed, int threads) : d_(words.cols) {
+  // `bytes`: the words are means of byte vectors (l2_bytes), searched in integer arithmetic.
+  IvfIndex(const cv::Mat& words, bool bytes, uint64_t seed, int threads) : d_(words.cols) {
     const int v = words.rows;
     const int nlist = std::max(1, static_cast<int>(std::lround(std::sqrt(static_cast<double>(v)))));
     std::mt19937_64 rng(seed ^ 0x1f1f);
@@ -174,10 +176,11 @@ class IvfIndex {
     for (int i = 0; i < v; ++i) ids_[fill[label[i]]++] = static_cast<uint32_t>(i);
     vectors_.create(v, d_, CV_32F);
     for (int i = 0; i < v; ++i) words.row(static_cast<int>(ids_[i])).copyTo(vectors_.row(i));
+    if (bytes && d_ % 2 == 0) MakeByteCopies();  // packed pairs of dimensions
   }
 
   // Restores an index saved by Save() for the words `words`; throws via `r` when inconsistent.
-  IvfIndex(const cv::Mat& words, BinaryReader* r) : d_(words.cols) {
+  IvfIndex(const cv::Mat& words, bool bytes, BinaryReader* r) : d_(words.cols) {
     const int32_t nlist = r->Get<int32_t>();
     if (nlist < 1 || nlist > words.rows) r->Fail("invalid IVF header");
     auto coarse = r->GetVector<float>(static_cast<uint64_t>(nlist) * d_);
@@ -197,7 +200,10 @@ class IvfIndex {
     coarse_ = cv::Mat(nlist, d_, CV_32F, coarse.data()).clone();
     vectors_.create(words.rows, d_, CV_32F);
     for (int i = 0; i < words.rows; ++i) words.row(static_cast<int>(ids_[i])).copyTo(vectors_.row(i));
+    if (bytes && d_ % 2 == 0) MakeByteCopies();  // packed pairs of dimensions
   }
+
+  bool bytes() const { return !coarse_packed_.empty(); }
 
   void Save(BinaryWriter* w) const {
     w->Put<int32_t>(coarse_.rows);
@@ -248,7 +254,105 @@ class IvfIndex {
     for (auto& h : *out) h.distance = std::sqrt(std::max(0.0f, h.distance));
   }
 
+  // Search() for byte descriptors (CV_8U rows) of an l2_bytes vocabulary. Lists are scanned
+  // with words rounded to bytes in exact integer arithmetic (a quarter of the memory traffic of
+  // floats, and SIMD-friendly); the best r + kRerank words of each descriptor are then ranked
+  // again by their exact float distance, so rounding cannot reorder the reported words unless
+  // it pushes a word past kRerank others.
+  void SearchBytes(const cv::Mat& q, int r, int nprobe, std::vector<WordHit>* out) const {
+    constexpr int kRerank = 4;
+    const int nlist = coarse_.rows;
+    const int k = r + kRerank;
+    nprobe = std::min(nprobe, nlist);
+    struct Cand {
+      int32_t dist;
+      uint32_t pos;  // row of vectors_
+    };
+    std::vector<Cand> cand(static_cast<size_t>(q.rows) * k,
+                           Cand{std::numeric_limits<int32_t>::max(), 0});
+    std::vector<int32_t> cd(nlist);
+    std::vector<uint32_t> cid(nlist);
+    std::vector<uint64_t> key(nlist);
+    std::vector<std::vector<int>> visitors(nlist);
+    // Each descriptor packed once for the SIMD scans.
+    const size_t packed_size = static_cast<size_t>(kPackedBlockRows) * d_;
+    std::vector<int16_t> pq(packed_size * q.rows);
+    for (int i = 0; i < q.rows; ++i) PackQuery(q.ptr<uint8_t>(i), d_, pq.data() + packed_size * i);
+    for (int i = 0; i < q.rows; ++i) {
+      PackedSquaredDistancesBelow(pq.data() + packed_size * i, coarse_packed_.data(), nlist, d_,
+                                  std::numeric_limits<int32_t>::max(), cid.data(), cd.data());
+      // The set of the nprobe nearest lists (their order does not matter: lists are visited
+      // in index order below). Keys pack distance and list so that ties resolve by index.
+      for (int c = 0; c < nlist; ++c) key[c] = (static_cast<uint64_t>(cd[c]) << 32) | static_cast<uint32_t>(c);
+      std::nth_element(key.begin(), key.begin() + (nprobe - 1), key.end());
+      for (int p = 0; p < nprobe; ++p) visitors[static_cast<uint32_t>(key[p])].push_back(i);
+    }
+    std::vector<int32_t> dist;
+    std::vector<uint32_t> row;
+    for (int list = 0; list < nlist; ++list) {
+      if (visitors[list].empty()) continue;
+      const uint32_t b = offsets_[list], e = offsets_[list + 1];
+      dist.resize(e - b);
+      row.resize(e - b);
+      for (int i : visitors[list]) {
+        Cand* best = cand.data() + static_cast<size_t>(i) * k;  // sorted by (dist, pos)
+        const int found = PackedSquaredDistancesBelow(
+            pq.data() + packed_size * i, packed_.data() + packed_offsets_[list], static_cast<int>(e - b), d_,
+            best[k - 1].dist, row.data(), dist.data());
+        for (int j = 0; j < found; ++j) {
+          if (dist[j] >= best[k - 1].dist) continue;  // ties: the earlier row stays
+          const Cand c{dist[j], b + row[j]};
+          int m = k - 1;
+          while (m > 0 && c.dist < best[m - 1].dist) {
+            best[m] = best[m - 1];
+            --m;
+          }
+          best[m] = c;
+        }
+      }
+    }
+    // Exact re-ranking of each descriptor's candidates.
+    out->assign(static_cast<size_t>(q.rows) * r, WordHit{});
+    std::vector<float> qf(d_);
+    std::vector<WordHit> hits;
+    for (int i = 0; i < q.rows; ++i) {
+      const uint8_t* qi = q.ptr<uint8_t>(i);
+      for (int t = 0; t < d_; ++t) qf[t] = qi[t];
+      hits.clear();
+      const Cand* best = cand.data() + static_cast<size_t>(i) * k;
+      for (int m = 0; m < k; ++m) {
+        if (best[m].dist == std::numeric_limits<int32_t>::max()) break;
+        float d2;
+        SquaredDistances(qf.data(), vectors_.ptr<float>(static_cast<int>(best[m].pos)), 1, d_, &d2);
+        hits.push_back({ids_[best[m].pos], d2});
+      }
+      std::sort(hits.begin(), hits.end(), Closer);
+      for (int j = 0; j < r && j < static_cast<int>(hits.size()); ++j) {
+        (*out)[static_cast<size_t>(i) * r + j] = {hits[j].word, std::sqrt(std::max(0.0f, hits[j].distance))};
+      }
+    }
+  }
+
  private:
+  static uint8_t ToByte(float x) { return static_cast<uint8_t>(std::clamp(std::lround(x), 0L, 255L)); }
+  void MakeByteCopies() {
+    std::vector<uint8_t> rows(vectors_.total());
+    const float* v = vectors_.ptr<float>();
+    for (size_t i = 0; i < rows.size(); ++i) rows[i] = ToByte(v[i]);
+    packed_.clear();
+    packed_offsets_.resize(coarse_.rows);
+    for (int c = 0; c < coarse_.rows; ++c) {
+      packed_offsets_[c] = packed_.size();
+      PackRows(rows.data() + static_cast<size_t>(offsets_[c]) * d_,
+               static_cast<int>(offsets_[c + 1] - offsets_[c]), d_, &packed_);
+    }
+    std::vector<uint8_t> coarse(coarse_.total());
+    const float* c = coarse_.ptr<float>();
+    for (size_t i = 0; i < coarse.size(); ++i) coarse[i] = ToByte(c[i]);
+    coarse_packed_.clear();
+    PackRows(coarse.data(), coarse_.rows, d_, &coarse_packed_);
+  }
+
   // Order of hits: by distance, ties by word id (independent of the list visiting order).
   static bool Closer(const WordHit& a, const WordHit& b) {
     return a.distance != b.distance ? a.distance < b.distance : a.word < b.word;
@@ -259,6 +363,9 @@ class IvfIndex {
   std::vector<uint32_t> offsets_;  // list c holds rows [offsets_[c], offsets_[c + 1])
   std::vector<uint32_t> ids_;      // word id of each row of vectors_
   cv::Mat vectors_;                // V x d word vectors grouped by list
+  std::vector<int16_t> packed_;          // vectors_ rounded to bytes, packed (l2_bytes only)
+  std::vector<size_t> packed_offsets_;   // list c starts at packed_[packed_offsets_[c]]
+  std::vector<int16_t> coarse_packed_;   // coarse_ rounded to bytes, packed (l2_bytes only)
 };
 
 // ---------------------------------------------------------------------------------------------
@@ -288,7 +395,7 @@ class AkmVocabulary : public Vocabulary {
     ann_ = ann;
     if (ann == AnnIndex::kIvf && !ivf_) {
       if constexpr (std::is_same<Space, FloatSpace>::value) {
-        ivf_ = std::make_unique<IvfIndex>(centroids_, 1, 0);
+        ivf_ = std::make_unique<IvfIndex>(centroids_, metric_ == Metric::kL2Bytes, 1, 0);
       } else {
         ann_ = AnnIndex::kFlann;  // binary descriptors: the Hamming tree only
       }
@@ -299,12 +406,16 @@ class AkmVocabulary : public Vocabulary {
     if (r < 1 || r > max_neighbours()) throw std::invalid_argument("Assign: r out of range");
     out->assign(static_cast<size_t>(descriptors.rows) * r, WordHit{});
     if (descriptors.rows == 0) return;
-    const cv::Mat q = ToSpace(descriptors, metric_);
-    if (q.cols != centroids_.cols) {
-      throw std::invalid_argument("Assign: descriptor length " + std::to_string(q.cols) +
+    if (descriptors.cols != centroids_.cols) {
+      throw std::invalid_argument("Assign: descriptor length " + std::to_string(descriptors.cols) +
                                   " does not match the vocabulary's " +
                                   std::to_string(centroids_.cols));
     }
+    if (ann_ == AnnIndex::kIvf && ivf_ && ivf_->bytes() && descriptors.type() == CV_8U) {
+      ivf_->SearchBytes(descriptors.isContinuous() ? descriptors : descriptors.clone(), r, nprobe_, out);
+      return;
+    }
+    const cv::Mat q = ToSpace(descriptors, metric_);
     if (ann_ == AnnIndex::kIvf && ivf_) {
       ivf_->Search(q, r, nprobe_, out);
     } else {
@@ -369,7 +480,7 @@ class AkmVocabulary : public Vocabulary {
  public:
   void LoadIvf(BinaryReader* r) {
     if constexpr (std::is_same<Space, FloatSpace>::value) {
-      ivf_ = std::make_unique<IvfIndex>(centroids_, r);
+      ivf_ = std::make_unique<IvfIndex>(centroids_, metric_ == Metric::kL2Bytes, r);
       ann_ = AnnIndex::kIvf;
     } else {
       r->Fail("IVF lists in a binary vocabulary");
