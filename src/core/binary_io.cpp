@@ -23,21 +23,19 @@ uint64_t Checksum64(const void* data, size_t size) {
 
 void WriteFramedFile(const std::filesystem::path& path, const char magic[8], uint32_t version,
                      const std::string& payload) {
-  std::string out;
-  out.reserve(payload.size() + 32);
-  out.append(magic, 8);
-  out.append(reinterpret_cast<const char*>(&version), sizeof(version));
+  char header[8 + sizeof(uint32_t) + sizeof(uint64_t)];
+  std::memcpy(header, magic, 8);
+  std::memcpy(header + 8, &version, sizeof(version));
   const uint64_t size = payload.size();
-  out.append(reinterpret_cast<const char*>(&size), sizeof(size));
-  out.append(payload);
+  std::memcpy(header + 12, &size, sizeof(size));
   const uint64_t sum = Checksum64(payload.data(), payload.size());
-  out.append(reinterpret_cast<const char*>(&sum), sizeof(sum));
-  WriteFileAtomic(path, out);
+  WriteFileAtomic(path, {std::string_view(header, sizeof(header)), std::string_view(payload),
+                         std::string_view(reinterpret_cast<const char*>(&sum), sizeof(sum))});
 }
 
-std::string ReadFramedFile(const std::filesystem::path& path, const char magic[8],
-                           uint32_t version, const std::string& what) {
-  const std::string data = ReadFile(path);
+FramedPayload ReadFramedFile(const std::filesystem::path& path, const char magic[8],
+                             uint32_t version, const std::string& what) {
+  std::string data = ReadFile(path);
   const std::string src = path.string();
   constexpr size_t kHeader = 8 + sizeof(uint32_t) + sizeof(uint64_t);
   if (data.size() < kHeader + sizeof(uint64_t)) {
@@ -64,7 +62,7 @@ std::string ReadFramedFile(const std::filesystem::path& path, const char magic[8
   if (Checksum64(data.data() + kHeader, size) != sum) {
     throw std::runtime_error(src + ": " + what + " file is corrupt (checksum mismatch)");
   }
-  return data.substr(kHeader, size);
+  return FramedPayload(std::move(data), kHeader, size);
 }
 
 }  // namespace gtbow

@@ -12,8 +12,11 @@ namespace gtbow {
 namespace {
 
 constexpr char kDatabaseMagic[8] = {'G', 'T', 'B', 'W', 'D', 'B', '\0', '\0'};
-constexpr uint32_t kDatabaseVersion = 1;
+constexpr uint32_t kDatabaseVersion = 2;  // 2: packed 8-byte entries
 constexpr float kTwoPi = static_cast<float>(2.0 * M_PI);
+// Weights d_w * c_d lie in [0, 1] (normalised vectors, shares summing to 1): 16-bit steps.
+constexpr float kWeightScale = 65535.0f;
+constexpr float kWeightStep = 1.0f / kWeightScale;
 
 // Orientation stored in 8 bits: 256 steps per turn (1.4 degrees).
 inline uint8_t QuantizeAngle(float a) {
@@ -21,18 +24,19 @@ inline uint8_t QuantizeAngle(float a) {
   return static_cast<uint8_t>(q & 255);
 }
 
-struct Posting {
-  uint32_t image;
-  float weight;     // d_w
-  uint32_t kp_end;  // keypoints [previous kp_end, kp_end) of the row's keypoint array
-};
+inline uint16_t QuantizeWeight(float w) {
+  const long q = std::lround(std::clamp(w, 0.0f, 1.0f) * kWeightScale);
+  return static_cast<uint16_t>(std::max(1L, q));  // a present keypoint never weighs nothing
+}
 
-struct PostedKeypoint {
+struct Entry {
+  uint32_t image_angle;  // image id << 8 | orientation
   uint16_t keypoint;
-  uint8_t angle;     // QuantizeAngle
-  uint8_t reserved;
-  float contribution;  // c_d
+  uint16_t weight;       // d_w * c_d, QuantizeWeight
+  uint32_t image() const { return image_angle >> 8; }
+  uint8_t angle() const { return static_cast<uint8_t>(image_angle & 255); }
 };
+static_assert(sizeof(Entry) == 8, "entries are 8 bytes");
 
 // Per-thread scratch for queries: a dense accumulator over images x bins.
 struct Scratch {
@@ -49,8 +53,7 @@ Scratch& ThreadScratch() {
 }  // namespace
 
 struct BowDatabase::Row {
-  std::vector<Posting> postings;
-  std::vector<PostedKeypoint> keypoints;
+  std::vector<Entry> entries;  // grouped by image (a posting), in insertion order
 };
 
 BowDatabase::BowDatabase(uint32_t num_rows, const BowOptions& options, uint64_t fingerprint)
@@ -62,19 +65,29 @@ BowDatabase::BowDatabase(uint32_t num_rows, const BowOptions& options, uint64_t 
 BowDatabase::~BowDatabase() = default;
 
 uint32_t BowDatabase::Add(const BowVector& v) {
+  for (const BowEntry& e : v.entries) {
+    if (e.row >= num_rows_) throw std::invalid_argument("BowDatabase::Add: row out of range");
+  }
+  for (const KeypointEntry& ke : v.keypoints) {
+    if (ke.keypoint >= v.angles.size()) {
+      throw std::invalid_argument("BowDatabase::Add: keypoint without an orientation");
+    }
+  }
   std::unique_lock<std::shared_mutex> lock(mutex_);
+  if (removed_.size() >= kMaxImages) {
+    throw std::length_error("BowDatabase::Add: the index holds at most " +
+                            std::to_string(kMaxImages) + " image ids");
+  }
   const uint32_t id = static_cast<uint32_t>(removed_.size());
   size_t k = 0;
   for (const BowEntry& e : v.entries) {
-    if (e.row >= num_rows_) throw std::invalid_argument("BowDatabase::Add: row out of range");
     Row& row = rows_[e.row];
     while (k < v.keypoints.size() && v.keypoints[k].row < e.row) ++k;
     while (k < v.keypoints.size() && v.keypoints[k].row == e.row) {
       const KeypointEntry& ke = v.keypoints[k++];
-      row.keypoints.push_back({ke.keypoint, QuantizeAngle(v.angles.at(ke.keypoint)), 0,
-                               ke.contribution});
+      row.entries.push_back({id << 8 | QuantizeAngle(v.angles[ke.keypoint]), ke.keypoint,
+                             QuantizeWeight(e.weight * ke.contribution)});
     }
-    row.postings.push_back({id, e.weight, static_cast<uint32_t>(row.keypoints.size())});
   }
   removed_.push_back(0);
   ++live_;
@@ -101,10 +114,8 @@ uint32_t BowDatabase::next_id() const {
 
 size_t BowDatabase::MemoryBytes() const {
   std::shared_lock<std::shared_mutex> lock(mutex_);
-  size_t bytes = rows_.size() * sizeof(Row) + removed_.size();
-  for (const Row& r : rows_) {
-    bytes += r.postings.capacity() * sizeof(Posting) + r.keypoints.capacity() * sizeof(PostedKeypoint);
-  }
+  size_t bytes = rows_.size() * sizeof(Row) + removed_.capacity();
+  for (const Row& r : rows_) bytes += r.entries.capacity() * sizeof(Entry);
   return bytes;
 }
 
@@ -120,48 +131,70 @@ std::vector<QueryResult> BowDatabase::Query(const BowVector& q, size_t top_n,
   if (s.seen.size() < n_images) s.seen.resize(n_images, 0);
   s.touched.clear();
   // Orientation bin of a difference: 256 angle steps map onto `bins` bins.
-  int bin_of[256];
-  for (int d = 0; d < 256; ++d) bin_of[d] = d * bins / 256;
+  uint8_t bin_of[256];
+  for (int d = 0; d < 256; ++d) bin_of[d] = static_cast<uint8_t>(d * bins / 256);
   // Query keypoint angles, quantised like the database's.
   std::vector<uint8_t> qa(q.angles.size());
   for (size_t i = 0; i < qa.size(); ++i) qa[i] = QuantizeAngle(q.angles[i]);
+  // Per query keypoint entry: q_w * c_q in the units of the stored weights.
+  std::vector<float> qwc(q.keypoints.size());
+  std::vector<uint8_t> qang(q.keypoints.size());
 
   size_t k = 0;
   for (const BowEntry& e : q.entries) {
     if (e.row >= num_rows_) continue;
-    const size_t kb = (k = std::lower_bound(q.keypoints.begin() + k, q.keypoints.end(), e.row,
-                                            [](const KeypointEntry& x, uint32_t r) { return x.row < r; }) -
-                           q.keypoints.begin());
+    while (k < q.keypoints.size() && q.keypoints[k].row < e.row) ++k;
+    const size_t kb = k;
     size_t ke = kb;
     while (ke < q.keypoints.size() && q.keypoints[ke].row == e.row) ++ke;
-    const Row& row = rows_[e.row];
-    uint32_t kp_begin = 0;
-    for (const Posting& p : row.postings) {
-      const uint32_t kp_end = p.kp_end;
-      if (!removed_[p.image]) {
-        if (!s.seen[p.image]) {
-          s.seen[p.image] = 1;
-          s.touched.push_back(p.image);
+    const std::vector<Entry>& entries = rows_[e.row].entries;
+    const Entry* x = entries.data();
+    const Entry* end = x + entries.size();
+    if (l1) {
+      // DBoW2's L1 score needs each posting's d_w: the sum of its entries' weights.
+      while (x < end) {
+        const uint32_t img = x->image();
+        uint32_t w = 0;
+        for (; x < end && x->image() == img; ++x) w += x->weight;
+        if (removed_[img]) continue;
+        if (!s.seen[img]) {
+          s.seen[img] = 1;
+          s.touched.push_back(img);
         }
-        float* acc = &s.acc[static_cast<size_t>(p.image) * bins];
-        if (l1) {
-          acc[0] += std::min(e.weight, p.weight);
-        } else if (!ov) {
-          acc[0] += e.weight * p.weight;
-        } else {
-          const float w = e.weight * p.weight;
-          for (size_t i = kb; i < ke; ++i) {
-            const float wq = w * q.keypoints[i].contribution;
-            const uint8_t aq = qa[q.keypoints[i].keypoint];
-            for (uint32_t j = kp_begin; j < kp_end; ++j) {
-              const PostedKeypoint& dk = row.keypoints[j];
-              acc[bin_of[static_cast<uint8_t>(dk.angle - aq)]] += wq * dk.contribution;
-            }
-          }
+        s.acc[img] += std::min(e.weight, static_cast<float>(w) * kWeightStep);
+      }
+    } else if (!ov) {
+      const float wq = e.weight * kWeightStep;
+      for (; x < end; ++x) {
+        const uint32_t img = x->image();
+        if (removed_[img]) continue;
+        if (!s.seen[img]) {
+          s.seen[img] = 1;
+          s.touched.push_back(img);
+        }
+        s.acc[img] += wq * static_cast<float>(x->weight);
+      }
+    } else {
+      for (size_t i = kb; i < ke; ++i) {
+        qwc[i] = e.weight * q.keypoints[i].contribution * kWeightStep;
+        qang[i] = qa[q.keypoints[i].keypoint];
+      }
+      for (; x < end; ++x) {
+        const uint32_t img = x->image();
+        if (removed_[img]) continue;
+        if (!s.seen[img]) {
+          s.seen[img] = 1;
+          s.touched.push_back(img);
+        }
+        float* acc = &s.acc[static_cast<size_t>(img) * bins];
+        const uint8_t a = x->angle();
+        const float w = static_cast<float>(x->weight);
+        for (size_t i = kb; i < ke; ++i) {
+          acc[bin_of[static_cast<uint8_t>(a - qang[i])]] += qwc[i] * w;
         }
       }
-      kp_begin = kp_end;
     }
+    k = ke;
   }
   // Scores: the best bin of each touched image.
   std::vector<QueryResult> results;
@@ -195,25 +228,18 @@ std::vector<QueryResult> BowDatabase::Query(const BowVector& q, size_t top_n,
     while (k < q.keypoints.size() && q.keypoints[k].row < e.row) ++k;
     size_t ke = k;
     while (ke < q.keypoints.size() && q.keypoints[ke].row == e.row) ++ke;
-    const Row& row = rows_[e.row];
-    uint32_t kp_begin = 0;
-    for (const Posting& p : row.postings) {
-      const int32_t sl = slot[p.image];
-      if (sl >= 0) {
-        QueryResult& r = results[sl];
-        const float w = e.weight * p.weight;
-        for (size_t i = k; i < ke; ++i) {
-          const uint8_t aq = qa[q.keypoints[i].keypoint];
-          for (uint32_t j = kp_begin; j < p.kp_end; ++j) {
-            const PostedKeypoint& dk = row.keypoints[j];
-            if (ov && bin_of[static_cast<uint8_t>(dk.angle - aq)] != r.orientation_bin) continue;
-            r.matches.push_back({q.keypoints[i].keypoint, dk.keypoint,
-                                 w * q.keypoints[i].contribution * dk.contribution});
-          }
-        }
+    for (const Entry& x : rows_[e.row].entries) {
+      const int32_t sl = slot[x.image()];
+      if (sl < 0) continue;
+      QueryResult& r = results[sl];
+      const float w = e.weight * static_cast<float>(x.weight) * kWeightStep;
+      for (size_t i = k; i < ke; ++i) {
+        const uint8_t aq = qa[q.keypoints[i].keypoint];
+        if (ov && bin_of[static_cast<uint8_t>(x.angle() - aq)] != r.orientation_bin) continue;
+        r.matches.push_back({q.keypoints[i].keypoint, x.keypoint, w * q.keypoints[i].contribution});
       }
-      kp_begin = p.kp_end;
     }
+    k = ke;
   }
   return results;
 }
@@ -231,21 +257,29 @@ void BowDatabase::Save(const std::filesystem::path& path) const {
   w.Put<int32_t>(options_.orientation_bins);
   w.Put<uint8_t>(static_cast<uint8_t>(options_.scoring));
   w.PutVector(removed_);
-  uint32_t nonempty = 0;
-  for (const Row& r : rows_) nonempty += r.postings.empty() ? 0 : 1;
-  w.Put<uint32_t>(nonempty);
+  // Compressed sparse rows: the non-empty rows' indices and sizes, then all entries.
+  std::vector<uint32_t> index, count;
+  size_t total = 0;
   for (uint32_t i = 0; i < num_rows_; ++i) {
-    const Row& r = rows_[i];
-    if (r.postings.empty()) continue;
-    w.Put<uint32_t>(i);
-    w.PutVector(r.postings);
-    w.PutVector(r.keypoints);
+    const size_t c = rows_[i].entries.size();
+    if (c == 0) continue;
+    index.push_back(i);
+    count.push_back(static_cast<uint32_t>(c));
+    total += c;
+  }
+  w.PutVector(index);
+  w.PutVector(count);
+  w.Put<uint64_t>(total);
+  w.buffer().reserve(w.buffer().size() + total * sizeof(Entry));
+  for (uint32_t i : index) {
+    const auto& e = rows_[i].entries;
+    w.buffer().append(reinterpret_cast<const char*>(e.data()), e.size() * sizeof(Entry));
   }
   WriteFramedFile(path, kDatabaseMagic, kDatabaseVersion, w.buffer());
 }
 
 void BowDatabase::Load(const std::filesystem::path& path) {
-  const std::string payload = ReadFramedFile(path, kDatabaseMagic, kDatabaseVersion, "database");
+  const FramedPayload payload = ReadFramedFile(path, kDatabaseMagic, kDatabaseVersion, "database");
   BinaryReader r(payload.data(), payload.size(), path.string());
   const uint32_t rows = r.Get<uint32_t>();
   const uint64_t fp = r.Get<uint64_t>();
@@ -268,27 +302,35 @@ void BowDatabase::Load(const std::filesystem::path& path) {
       o.orientation_bins != options_.orientation_bins || o.scoring != options_.scoring) {
     r.Fail("database was built with different BoW options");
   }
-  auto removed = r.GetVector<uint8_t>(1u << 31);
+  auto removed = r.GetVector<uint8_t>(kMaxImages);
+  const auto index = r.GetVector<uint32_t>(num_rows_);
+  const auto count = r.GetVector<uint32_t>(num_rows_);
+  const uint64_t total = r.Get<uint64_t>();
+  if (count.size() != index.size()) r.Fail("row table is inconsistent");
+  uint64_t sum = 0;
+  for (size_t n = 0; n < index.size(); ++n) {
+    if (index[n] >= num_rows_ || (n > 0 && index[n] <= index[n - 1])) r.Fail("row index out of order");
+    if (count[n] == 0) r.Fail("empty row in the row table");
+    sum += count[n];
+  }
+  if (sum != total || total * sizeof(Entry) != r.remaining()) r.Fail("entry count does not match the rows");
+  const auto* src = reinterpret_cast<const char*>(payload.data()) + (payload.size() - r.remaining());
+  const uint32_t n_images = static_cast<uint32_t>(removed.size());
   std::vector<Row> new_rows(num_rows_);
-  const uint32_t nonempty = r.Get<uint32_t>();
-  if (nonempty > num_rows_) r.Fail("row count out of range");
-  uint32_t prev = 0;
-  for (uint32_t n = 0; n < nonempty; ++n) {
-    const uint32_t i = r.Get<uint32_t>();
-    if (i >= num_rows_ || (n > 0 && i <= prev)) r.Fail("row index out of order");
-    prev = i;
-    Row& row = new_rows[i];
-    row.postings = r.GetVector<Posting>(removed.size());
-    row.keypoints = r.GetVector<PostedKeypoint>(removed.size() * 65536ull);
+  for (size_t n = 0; n < index.size(); ++n) {
+    auto& e = new_rows[index[n]].entries;
+    e.resize(count[n]);
+    std::memcpy(e.data(), src, count[n] * sizeof(Entry));
+    src += count[n] * sizeof(Entry);
     uint32_t last = 0;
-    for (const Posting& p : row.postings) {
-      if (p.image >= removed.size() || p.kp_end < last || p.kp_end > row.keypoints.size()) {
-        r.Fail("invalid posting in row " + std::to_string(i));
+    for (const Entry& x : e) {
+      // Postings of a row are in insertion order, so image ids never decrease.
+      if (x.image() >= n_images || x.image() < last || x.weight == 0) {
+        r.Fail("invalid entry in row " + std::to_string(index[n]));
       }
-      last = p.kp_end;
+      last = x.image();
     }
   }
-  if (r.remaining() != 0) r.Fail("unexpected trailing data");
   size_t live = 0;
   for (uint8_t x : removed) live += x ? 0 : 1;
   std::unique_lock<std::shared_mutex> lock(mutex_);

@@ -1,8 +1,10 @@
 #include "ground_texture_bow/core/file_util.h"
 
 #include <fcntl.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cerrno>
 #include <cstring>
 #include <fstream>
@@ -28,23 +30,29 @@ std::string Errno() { return std::strerror(errno); }
 }  // namespace
 
 void WriteFileAtomic(const fs::path& path, const std::string& contents) {
+  WriteFileAtomic(path, {std::string_view(contents)});
+}
+
+void WriteFileAtomic(const fs::path& path, std::initializer_list<std::string_view> pieces) {
   const fs::path dir = path.has_parent_path() ? path.parent_path() : fs::path(".");
   const fs::path tmp = dir / ("." + path.filename().string() + ".tmp-" + RandomSuffix());
   const int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0644);
   if (fd < 0) {
     throw std::runtime_error("cannot write '" + path.string() + "': " + Errno());
   }
-  size_t done = 0;
-  while (done < contents.size()) {
-    const ssize_t n = ::write(fd, contents.data() + done, contents.size() - done);
-    if (n < 0) {
-      if (errno == EINTR) continue;
-      const std::string why = Errno();
-      ::close(fd);
-      ::unlink(tmp.c_str());
-      throw std::runtime_error("cannot write '" + path.string() + "': " + why);
+  for (std::string_view piece : pieces) {
+    size_t done = 0;
+    while (done < piece.size()) {
+      const ssize_t n = ::write(fd, piece.data() + done, piece.size() - done);
+      if (n < 0) {
+        if (errno == EINTR) continue;
+        const std::string why = Errno();
+        ::close(fd);
+        ::unlink(tmp.c_str());
+        throw std::runtime_error("cannot write '" + path.string() + "': " + why);
+      }
+      done += static_cast<size_t>(n);
     }
-    done += static_cast<size_t>(n);
   }
   if (::fsync(fd) != 0 || ::close(fd) != 0) {
     const std::string why = Errno();
@@ -59,12 +67,36 @@ void WriteFileAtomic(const fs::path& path, const std::string& contents) {
 }
 
 std::string ReadFile(const fs::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) throw std::runtime_error("cannot read '" + path.string() + "': " + Errno());
-  std::ostringstream s;
-  s << in.rdbuf();
-  if (in.bad()) throw std::runtime_error("error reading '" + path.string() + "'");
-  return s.str();
+  const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+  if (fd < 0) throw std::runtime_error("cannot read '" + path.string() + "': " + Errno());
+  std::string data;
+  struct stat st {};
+  if (::fstat(fd, &st) == 0 && S_ISREG(st.st_mode)) data.reserve(static_cast<size_t>(st.st_size));
+  char buf[1 << 16];
+  for (;;) {
+    // Straight into the string when its size is known, through a buffer otherwise.
+    if (data.capacity() > data.size()) {
+      const size_t old = data.size();
+      data.resize(data.capacity());
+      const ssize_t n = ::read(fd, data.data() + old, data.size() - old);
+      data.resize(old + static_cast<size_t>(std::max<ssize_t>(n, 0)));
+      if (n > 0) continue;
+      if (n == 0) break;
+    } else {
+      const ssize_t n = ::read(fd, buf, sizeof(buf));
+      if (n > 0) {
+        data.append(buf, static_cast<size_t>(n));
+        continue;
+      }
+      if (n == 0) break;
+    }
+    if (errno == EINTR) continue;
+    const std::string why = Errno();
+    ::close(fd);
+    throw std::runtime_error("error reading '" + path.string() + "': " + why);
+  }
+  ::close(fd);
+  return data;
 }
 
 fs::path StageDirectory(const fs::path& target_in, bool force) {

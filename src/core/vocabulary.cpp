@@ -991,7 +991,7 @@ std::unique_ptr<Vocabulary> MakeVocabularyFromFile(BinaryReader* r, VocabularyKi
 }  // namespace
 
 std::unique_ptr<Vocabulary> Vocabulary::Load(const std::filesystem::path& path) {
-  const std::string payload = ReadFramedFile(path, kVocabularyMagic, kVocabularyVersion, "vocabulary");
+  const FramedPayload payload = ReadFramedFile(path, kVocabularyMagic, kVocabularyVersion, "vocabulary");
   BinaryReader r(payload.data(), payload.size(), path.string());
   const uint8_t kind = r.Get<uint8_t>(), metric = r.Get<uint8_t>();
   if (kind > 1 || metric > 2) r.Fail("unknown vocabulary kind or metric");

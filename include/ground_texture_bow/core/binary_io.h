@@ -92,9 +92,23 @@ class BinaryReader {
 void WriteFramedFile(const std::filesystem::path& path, const char magic[8], uint32_t version,
                      const std::string& payload);
 
-// Reads a framed file and returns its payload; throws std::runtime_error naming the file when
-// the magic, version, size or checksum is wrong.
-std::string ReadFramedFile(const std::filesystem::path& path, const char magic[8],
-                           uint32_t version, const std::string& what);
+// A framed file's contents, with the payload located inside it (no copy of the payload).
+class FramedPayload {
+ public:
+  FramedPayload(std::string file, size_t offset, size_t size)
+      : file_(std::move(file)), offset_(offset), size_(size) {}
+  const char* data() const { return file_.data() + offset_; }
+  size_t size() const { return size_; }
+
+ private:
+  std::string file_;
+  size_t offset_;
+  size_t size_;
+};
+
+// Reads a framed file; throws std::runtime_error naming the file when the magic, version, size
+// or checksum is wrong.
+FramedPayload ReadFramedFile(const std::filesystem::path& path, const char magic[8],
+                             uint32_t version, const std::string& what);
 
 }  // namespace gtbow

@@ -5,6 +5,13 @@
 // shared row votes q_w * d_w * c_q * c_d into the orientation-difference bin of its image, and
 // the image's score is its best bin.
 //
+// Layout (8 bytes per database keypoint on a row, nothing per posting): a row is one
+// contiguous array of keypoint entries; a posting is the run of consecutive entries of one
+// image. An entry packs the image id (24 bits) with the keypoint's orientation (8 bits, 1.4
+// degree steps), the keypoint id (16 bits) and d_w * c_d quantised to 16 bits. Since the c_d of
+// a posting sum to 1, d_w is the sum of its entries' weights; the plain dot product and the
+// DBoW2 L1 score are computed from that. At most 2^24 image ids.
+//
 // Thread safety: any number of concurrent Query() calls with one writer. Add(), Remove() and
 // Load() take the index's mutex exclusively; Query(), size() and Save() take it shared.
 #pragma once
@@ -42,8 +49,11 @@ class BowDatabase {
   BowDatabase(const BowDatabase&) = delete;
   BowDatabase& operator=(const BowDatabase&) = delete;
 
+  // The largest number of image ids an index hands out.
+  static constexpr uint32_t kMaxImages = 1u << 24;
+
   // Inserts an image's BoW vector; returns its id (0, 1, 2, ...). Cost is independent of the
-  // database size.
+  // database size. Throws std::length_error once kMaxImages ids have been handed out.
   uint32_t Add(const BowVector& vector);
   // Removes an image; its id is not reused. Returns false for an unknown or removed id.
   bool Remove(uint32_t image);
@@ -56,7 +66,7 @@ class BowDatabase {
   uint32_t next_id() const;     // ids handed out so far
   uint32_t num_rows() const { return num_rows_; }
   const BowOptions& options() const { return options_; }
-  size_t MemoryBytes() const;   // postings and keypoint entries
+  size_t MemoryBytes() const;   // rows, entries (with spare capacity) and image flags
 
   // Writes the index atomically (magic, version, checksum).
   void Save(const std::filesystem::path& path) const;

@@ -4,7 +4,9 @@
 #pragma once
 
 #include <filesystem>
+#include <initializer_list>
 #include <string>
+#include <string_view>
 
 namespace gtbow {
 
@@ -12,6 +14,9 @@ namespace gtbow {
 // flushed and renamed over `path`. On failure nothing at `path` changes and the temporary is
 // removed.
 void WriteFileAtomic(const std::filesystem::path& path, const std::string& contents);
+// The same for contents given in pieces, written one after the other (no joined copy).
+void WriteFileAtomic(const std::filesystem::path& path,
+                     std::initializer_list<std::string_view> pieces);
 
 // Reads a whole file; throws std::runtime_error naming the path when it cannot be read.
 std::string ReadFile(const std::filesystem::path& path);
