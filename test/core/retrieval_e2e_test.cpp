@@ -1,11 +1,14 @@
 // End to end on a small synthetic floor: features -> vocabulary -> BoW -> inverted index.
-// A revisited place (a later day, another pose) must retrieve the right database image.
+// A revisited place (a later day, another pose) must retrieve the right database image and
+// localize within the protocol's 4.8 mm and 1.5 degrees.
+#include <cmath>
 #include <cstdio>
 
 #include <gtest/gtest.h>
 
 #include "ground_texture_bow/core/config.h"
 #include "ground_texture_bow/core/database.h"
+#include "ground_texture_bow/core/pose.h"
 #include "ground_texture_bow/core/synth/generator.h"
 
 namespace gtbow {
@@ -56,7 +59,11 @@ TEST(RetrievalEndToEnd, RevisitedPlacesFindTheRightDatabaseImage) {
   BowDatabase db(enc.num_rows(), cfg.bow, vocab->fingerprint());
   for (const auto& f : db_feats) db.Add(enc.Encode(f));
 
-  int right = 0;
+  MapAccess map;
+  map.keypoints = [&](uint32_t i) -> const std::vector<Keypoint>& { return db_feats.at(i).keypoints; };
+  map.pose = [&](uint32_t i) { return db_poses.at(i); };
+  int right = 0, localized = 0;
+  double worst_mm = 0.0, worst_deg = 0.0;
   for (const auto& [pose, f] : queries) {
     size_t best = 0;
     for (size_t d = 1; d < db_poses.size(); ++d) {
@@ -67,7 +74,21 @@ TEST(RetrievalEndToEnd, RevisitedPlacesFindTheRightDatabaseImage) {
     right += res[0].image == best ? 1 : 0;
     EXPECT_TRUE(IsRelevant(pose, db_poses[res[0].image], geo));
     EXPECT_GT(res[0].matches.size(), 10u);  // pairs for pose estimation
+    // Global localization: the protocol's success is 4.8 mm and 1.5 degrees.
+    const Localization loc = Localize(db, enc.Encode(f), map, geo, LocalizationOptions{});
+    ASSERT_TRUE(loc.success) << loc.reason;
+    const double mm = 1000.0 * std::hypot(loc.estimate.floor_from_query.x - pose.x,
+                                          loc.estimate.floor_from_query.y - pose.y);
+    const double deg = std::abs(WrapAngle(loc.estimate.floor_from_query.theta - pose.theta)) * 180.0 / M_PI;
+    worst_mm = std::max(worst_mm, mm);
+    worst_deg = std::max(worst_deg, deg);
+    localized += mm <= 4.8 && deg <= 1.5 ? 1 : 0;
+    EXPECT_GT(loc.estimate.covariance[0], 0.0);
+    EXPECT_LT(std::sqrt(loc.estimate.covariance[0]), 0.001);  // claimed 1-sigma below 1 mm
   }
+  std::printf("localized %d of %zu within 4.8 mm and 1.5 deg; worst %.3f mm, %.3f deg\n", localized,
+              queries.size(), worst_mm, worst_deg);
+  EXPECT_EQ(localized, static_cast<int>(queries.size()));
   std::printf("top-1 = the revisited database image for %d of %zu day-30 queries\n", right,
               queries.size());
   EXPECT_EQ(right, static_cast<int>(queries.size()));
