@@ -263,21 +263,22 @@ std::vector<PointMatch> MatchesOf(const QueryResult& result,
   return out;
 }
 
-Localization Localize(const BowDatabase& database, const BowVector& query, const MapAccess& map,
-                      const ImageGeometry& geometry, const LocalizationOptions& o) {
+Localization VerifyCandidates(const std::vector<QueryResult>& results, const BowVector& query,
+                              const MapAccess& map, const ImageGeometry& geometry,
+                              const LocalizationOptions& o) {
   o.Check();
   Localization loc;
   if (query.source.empty()) {
     loc.reason = "the query image has no features";
     return loc;
   }
-  const auto results = database.Query(query, static_cast<size_t>(o.candidates), true);
   if (results.empty()) {
     loc.reason = "no database image shares a word with the query";
     return loc;
   }
   std::string reasons;
-  for (size_t rank = 0; rank < results.size(); ++rank) {
+  const size_t n = std::min(results.size(), static_cast<size_t>(o.candidates));
+  for (size_t rank = 0; rank < n; ++rank) {
     const QueryResult& r = results[rank];
     const auto matches = MatchesOf(r, query.source, map.keypoints(r.image));
     PoseEstimate est = EstimatePose(matches, map.pose(r.image), geometry, o.pose);
@@ -291,9 +292,17 @@ Localization Localize(const BowDatabase& database, const BowVector& query, const
     }
     if (rank < 3) reasons += (reasons.empty() ? "" : "; ") + ("image " + std::to_string(r.image) + ": " + est.reason);
   }
-  loc.reason = "none of " + std::to_string(results.size()) + " candidates verified (" + reasons +
-               (results.size() > 3 ? "; ..." : "") + ")";
+  loc.reason = "none of " + std::to_string(n) + " candidates verified (" + reasons +
+               (n > 3 ? "; ..." : "") + ")";
   return loc;
+}
+
+Localization Localize(const BowDatabase& database, const BowVector& query, const MapAccess& map,
+                      const ImageGeometry& geometry, const LocalizationOptions& o) {
+  o.Check();
+  if (query.source.empty()) return VerifyCandidates({}, query, map, geometry, o);
+  return VerifyCandidates(database.Query(query, static_cast<size_t>(o.candidates), true), query,
+                          map, geometry, o);
 }
 
 }  // namespace gtbow

@@ -21,6 +21,7 @@
 #include "ground_texture_bow/core/database.h"
 #include "ground_texture_bow/core/progress.h"
 #include "image_source.h"
+#include "paper_reference.h"
 
 namespace fs = std::filesystem;
 
@@ -65,15 +66,6 @@ Stats Summarise(std::vector<double> v) {
   s.p95 = v[std::min(v.size() - 1, v.size() * 95 / 100)];
   return s;
 }
-
-// The paper's Table II (i7-13700, 32,251-image asphalt database), in ms: mean, sd.
-struct PaperRow {
-  const char* name;
-  double extract[2], transform[2], insert[2], query[2];
-};
-constexpr PaperRow kDbow = {"DBoW", {19.1, 2.5}, {6.7, 0.0}, {0.0, 0.0}, {50, 5.5}};
-constexpr PaperRow kHigh = {"Ours (High Acc.)", {18.9, 2.5}, {24, 0.3}, {1.4, 0.5}, {149.6, 14.9}};
-constexpr PaperRow kFast = {"Ours (Fast)", {18.9, 2.5}, {23.1, 0.3}, {0.6, 0.4}, {31.9, 3.7}};
 
 void RunOne(const BenchArgs& a, const std::string& preset, const RetrievalConfig& c,
             Vocabulary* vocab, double vocab_load_ms, const ImageSource& db_src,
@@ -171,9 +163,9 @@ void RunOne(const BenchArgs& a, const std::string& preset, const RetrievalConfig
   size_t agree = 0;
   for (size_t i = 0; i < approx.size(); ++i) agree += approx[i].word == exact[i].word ? 1 : 0;
 
-  const PaperRow& paper = c.vocabulary.kind == VocabularyKind::kHkm ? kDbow
-                          : c.bow.soft_assignment == 1                ? kFast
-                                                                      : kHigh;
+  const PaperTiming& paper = c.vocabulary.kind == VocabularyKind::kHkm ? kPaperDbow
+                          : c.bow.soft_assignment == 1                ? kPaperFast
+                                                                      : kPaperHigh;
   const Stats ex = Summarise(ex_ms), tr = Summarise(tr_ms), in = Summarise(insert_ms), qu = Summarise(q_ms);
   char buf[4096];
   std::string md;

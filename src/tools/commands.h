@@ -10,7 +10,7 @@ namespace tools {
 void RegisterSynth(CLI::App& app);
 void RegisterTrainVocab(CLI::App& app);
 void RegisterBenchRetrieval(CLI::App& app);
-void RegisterEvalRetrieval(CLI::App& app);
+void RegisterEval(CLI::App& app);
 
 }  // namespace tools
 }  // namespace gtbow

@@ -19,7 +19,7 @@ int main(int argc, char** argv) {
   gtbow::tools::RegisterSynth(app);
   gtbow::tools::RegisterTrainVocab(app);
   gtbow::tools::RegisterBenchRetrieval(app);
-  gtbow::tools::RegisterEvalRetrieval(app);
+  gtbow::tools::RegisterEval(app);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

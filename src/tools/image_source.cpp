@@ -2,6 +2,9 @@
 
 #include <algorithm>
 #include <atomic>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
 #include <mutex>
 #include <stdexcept>
 #include <thread>
@@ -9,6 +12,7 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "ground_texture_bow/core/binary_io.h"
 #include "ground_texture_bow/core/progress.h"
 
 namespace fs = std::filesystem;
@@ -88,6 +92,132 @@ std::vector<ImageFeatures> ExtractAll(const ImageSource& source, const FeatureOp
   bar.Finish();
   if (failed) throw std::runtime_error(error);
   return out;
+}
+
+fs::path ImageSource::Path(size_t i) const {
+  return dataset_ ? dataset_->ImagePath(names_.at(i)) : folder_ / names_.at(i);
+}
+
+uint64_t ImageSource::ContentKey() const {
+  BinaryWriter w;
+  w.PutString(fs::absolute(dataset_ ? dataset_->root() : folder_).lexically_normal().string());
+  for (size_t i = 0; i < names_.size(); ++i) {
+    std::error_code ec;
+    const fs::path p = Path(i);
+    w.PutString(names_[i]);
+    w.Put<uint64_t>(fs::file_size(p, ec));
+    w.Put<int64_t>(fs::last_write_time(p, ec).time_since_epoch().count());
+  }
+  return Checksum64(w.buffer().data(), w.buffer().size());
+}
+
+namespace {
+
+constexpr char kFeatureCacheMagic[8] = {'G', 'T', 'B', 'W', 'F', 'E', 'A', 'T'};
+constexpr uint32_t kFeatureCacheVersion = 1;
+
+void SaveFeatures(const fs::path& path, const std::vector<ImageFeatures>& feats) {
+  BinaryWriter w;
+  w.Put<uint64_t>(feats.size());
+  for (const auto& f : feats) {
+    w.PutVector(f.keypoints);
+    w.Put<int32_t>(f.descriptors.rows);
+    w.Put<int32_t>(f.descriptors.cols);
+    w.Put<int32_t>(f.descriptors.type());
+    const cv::Mat d = f.descriptors.isContinuous() ? f.descriptors : f.descriptors.clone();
+    w.PutArray(d.data, d.total() * d.elemSize());
+  }
+  WriteFramedFile(path, kFeatureCacheMagic, kFeatureCacheVersion, w.buffer());
+}
+
+std::vector<ImageFeatures> LoadFeatures(const fs::path& path, size_t expected) {
+  const FramedPayload p = ReadFramedFile(path, kFeatureCacheMagic, kFeatureCacheVersion, "feature cache");
+  BinaryReader r(p.data(), p.size(), path.string());
+  if (r.Get<uint64_t>() != expected) r.Fail("image count does not match");
+  std::vector<ImageFeatures> feats(expected);
+  for (auto& f : feats) {
+    f.keypoints = r.GetVector<Keypoint>(1u << 20);
+    const int32_t rows = r.Get<int32_t>(), cols = r.Get<int32_t>(), type = r.Get<int32_t>();
+    if (rows != static_cast<int32_t>(f.keypoints.size()) || cols < 0 || cols > 4096 ||
+        (type != CV_8U && type != CV_32F)) {
+      r.Fail("invalid descriptor block");
+    }
+    f.descriptors.create(rows, cols, type);
+    auto bytes = r.GetVector<uint8_t>(static_cast<uint64_t>(rows) * cols * 4);
+    if (bytes.size() != f.descriptors.total() * f.descriptors.elemSize()) r.Fail("descriptor size mismatch");
+    if (!bytes.empty()) std::memcpy(f.descriptors.data, bytes.data(), bytes.size());
+  }
+  if (r.remaining() != 0) r.Fail("unexpected trailing data");
+  return feats;
+}
+
+}  // namespace
+
+fs::path DefaultCacheDir() {
+  if (const char* x = std::getenv("XDG_CACHE_HOME"); x != nullptr && *x != '\0') {
+    return fs::path(x) / "ground_texture_bow";
+  }
+  const char* home = std::getenv("HOME");
+  return fs::path(home != nullptr && *home != '\0' ? home : "/tmp") / ".cache" / "ground_texture_bow";
+}
+
+std::vector<ImageFeatures> ExtractAllCached(const ImageSource& source, const FeatureOptions& options,
+                                            const fs::path& cache_dir, int threads, bool progress) {
+  if (cache_dir.empty()) return ExtractAll(source, options, threads, progress);
+  RetrievalConfig key_config;
+  key_config.features = options;
+  const std::string opt = FormatRetrievalConfig(key_config);
+  char name[64];
+  std::snprintf(name, sizeof(name), "features-%016llx-%016llx.bin",
+                static_cast<unsigned long long>(source.ContentKey()),
+                static_cast<unsigned long long>(Checksum64(opt.data(), opt.size())));
+  const fs::path file = cache_dir / name;
+  std::error_code ec;
+  if (fs::exists(file, ec)) {
+    try {
+      return LoadFeatures(file, source.size());
+    } catch (const std::exception& e) {
+      std::fprintf(stderr, "feature cache: %s; extracting again\n", e.what());
+    }
+  }
+  auto feats = ExtractAll(source, options, threads, progress);
+  try {
+    fs::create_directories(cache_dir);
+    SaveFeatures(file, feats);
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "feature cache: not saved (%s)\n", e.what());
+  }
+  return feats;
+}
+
+std::unique_ptr<Vocabulary> TrainOnFeatures(const RetrievalConfig& c,
+                                            const std::vector<ImageFeatures>& feats, bool progress) {
+  size_t total = 0;
+  for (const auto& f : feats) total += f.size();
+  if (total == 0) throw std::runtime_error("no features found in the training images");
+  cv::Mat desc;
+  std::vector<cv::Mat> blocks;
+  std::vector<uint32_t> image_of;
+  std::vector<float> sizes;
+  image_of.reserve(total);
+  for (size_t i = 0; i < feats.size(); ++i) {
+    if (feats[i].size() == 0) continue;
+    blocks.push_back(feats[i].descriptors);
+    for (const auto& k : feats[i].keypoints) {
+      image_of.push_back(static_cast<uint32_t>(i));
+      sizes.push_back(k.size);
+    }
+  }
+  cv::vconcat(blocks, desc);
+  if (c.vocabulary.kind == VocabularyKind::kAkm && desc.rows < c.vocabulary.num_words) {
+    throw std::runtime_error("only " + std::to_string(desc.rows) + " descriptors from " +
+                             std::to_string(feats.size()) + " training images for " +
+                             std::to_string(c.vocabulary.num_words) +
+                             " words; use more training images or fewer words");
+  }
+  auto vocab = TrainVocabulary(c.vocabulary, desc, image_of, progress);
+  vocab->set_size_thresholds(SizePercentileThresholds(sizes, c.bow.num_size_bins));
+  return vocab;
 }
 
 std::vector<BowVector> EncodeAll(const BowEncoder& encoder, const std::vector<ImageFeatures>& f,

@@ -8,6 +8,7 @@
 #include <vector>
 
 #include "ground_texture_bow/core/bow.h"
+#include "ground_texture_bow/core/config.h"
 #include "ground_texture_bow/core/dataset.h"
 #include "ground_texture_bow/core/features.h"
 
@@ -27,6 +28,10 @@ class ImageSource {
   cv::Mat LoadGray(size_t i) const;
   // Keeps every k-th image so that at most `max_images` remain (0 = all).
   void Subsample(size_t max_images);
+  // The file of image i.
+  std::filesystem::path Path(size_t i) const;
+  // Identifies the images: names, sizes and modification times (for caches).
+  uint64_t ContentKey() const;
 
  private:
   std::shared_ptr<Dataset> dataset_;  // null for a folder
@@ -37,6 +42,24 @@ class ImageSource {
 // Extracts features of every image on `threads` threads (0 = all cores) with a progress bar.
 std::vector<ImageFeatures> ExtractAll(const ImageSource& source, const FeatureOptions& options,
                                       int threads, bool progress);
+
+// ExtractAll through a cache: the features of `source` with `options` are stored under
+// `cache_dir` (created when missing) in a file named by the images' ContentKey and the options,
+// and read back on the next call. An empty `cache_dir` disables the cache; a damaged or
+// unwritable cache is reported on stderr and bypassed, never fatal.
+std::vector<ImageFeatures> ExtractAllCached(const ImageSource& source, const FeatureOptions& options,
+                                            const std::filesystem::path& cache_dir, int threads,
+                                            bool progress);
+
+// The default cache directory: $XDG_CACHE_HOME/ground_texture_bow or ~/.cache/ground_texture_bow.
+std::filesystem::path DefaultCacheDir();
+
+// Trains a vocabulary of configuration `config` on the features of training images (idf over
+// these images; percentile size thresholds for config.bow.num_size_bins). Throws when there are
+// too few descriptors.
+std::unique_ptr<Vocabulary> TrainOnFeatures(const RetrievalConfig& config,
+                                            const std::vector<ImageFeatures>& features,
+                                            bool progress);
 
 // BoW vectors of every image's features on `threads` threads (0 = all cores).
 std::vector<BowVector> EncodeAll(const BowEncoder& encoder, const std::vector<ImageFeatures>& features,

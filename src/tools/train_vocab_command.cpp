@@ -42,29 +42,7 @@ void RunTrain(const TrainArgs& a) {
   const auto feats = ExtractAll(src, c.features, a.threads, !a.quiet);
   size_t total = 0;
   for (const auto& f : feats) total += f.size();
-  if (total == 0) throw std::runtime_error("no features found in the training images");
-  cv::Mat desc;
-  std::vector<cv::Mat> blocks;
-  std::vector<uint32_t> image_of;
-  std::vector<float> sizes;
-  image_of.reserve(total);
-  for (size_t i = 0; i < feats.size(); ++i) {
-    if (feats[i].size() == 0) continue;
-    blocks.push_back(feats[i].descriptors);
-    for (const auto& k : feats[i].keypoints) {
-      image_of.push_back(static_cast<uint32_t>(i));
-      sizes.push_back(k.size);
-    }
-  }
-  cv::vconcat(blocks, desc);
-  if (c.vocabulary.kind == VocabularyKind::kAkm && desc.rows < c.vocabulary.num_words) {
-    throw std::runtime_error("only " + std::to_string(desc.rows) + " descriptors from " +
-                             std::to_string(src.size()) + " images for " +
-                             std::to_string(c.vocabulary.num_words) +
-                             " words; use more training images or fewer --words");
-  }
-  auto vocab = TrainVocabulary(c.vocabulary, desc, image_of, !a.quiet);
-  vocab->set_size_thresholds(SizePercentileThresholds(sizes, c.bow.num_size_bins));
+  auto vocab = TrainOnFeatures(c, feats, !a.quiet);
   vocab->Save(a.out);
   const double secs = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   std::printf("Vocabulary written to %s\n", a.out.c_str());

@@ -88,9 +88,20 @@ TEST_F(GtbowCli, TrainEvaluateAndBenchmarkOnASyntheticFloor) {
   r = RunGtbow("train-vocab --dataset " + d + " --words 800 --out " + Out("v.gtvoc") + " -q");
   ASSERT_EQ(r.code, 0) << r.output;
   EXPECT_NE(r.output.find("800 words"), std::string::npos) << r.output;
-  r = RunGtbow("eval-retrieval --dataset " + d + " --vocab " + Out("v.gtvoc") + " -q");
+  r = RunGtbow("eval --dataset " + d + " --vocab " + Out("v.gtvoc") + " --out " + Out("eval") +
+               " --timing-queries 4 --no-cache --no-plots --dump-rankings " + Out("rank.csv") +
+               " --dump-poses " + Out("poses.csv") + " -q");
   ASSERT_EQ(r.code, 0) << r.output;
-  EXPECT_NE(r.output.find("| query_day090 | 6 |"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("| query_day090 | 90 | 6 |"), std::string::npos) << r.output;
+  EXPECT_TRUE(fs::exists(dir_ / "eval" / "results.json"));
+  EXPECT_TRUE(fs::exists(dir_ / "eval" / "summary.md"));
+  std::ifstream poses(dir_ / "poses.csv");
+  std::string header;
+  std::getline(poses, header);
+  EXPECT_EQ(header, "query,x,y,theta,inliers");
+  std::ifstream rank(dir_ / "rank.csv");
+  std::getline(rank, header);
+  EXPECT_EQ(header, "query,rank,image,score");
   r = RunGtbow("bench-retrieval --dataset " + d + " --vocab " + Out("v.gtvoc") +
                " --preset " GTBOW_CONFIG_DIR "/fast.yaml --queries 5 -q");
   ASSERT_EQ(r.code, 0) << r.output;
@@ -102,12 +113,13 @@ TEST_F(GtbowCli, TrainEvaluateAndBenchmarkOnASyntheticFloor) {
   EXPECT_NE(r.output.find("nope.txt does not exist"), std::string::npos) << r.output;
   r = RunGtbow("train-vocab --dataset " + d + " --words 1000000 --out " + Out("x.gtvoc") + " -q");
   EXPECT_NE(r.code, 0);
-  EXPECT_NE(r.output.find("fewer --words"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("fewer words"), std::string::npos) << r.output;
   EXPECT_FALSE(fs::exists(dir_ / "x.gtvoc"));
   std::ofstream(dir_ / "bad.gtvoc") << "GTBWVOC junk";
-  r = RunGtbow("eval-retrieval --dataset " + d + " --vocab " + Out("bad.gtvoc") + " -q");
+  r = RunGtbow("eval --dataset " + d + " --vocab " + Out("bad.gtvoc") + " --out " + Out("bad_eval") + " -q");
   EXPECT_NE(r.code, 0);
   EXPECT_NE(r.output.find("bad.gtvoc"), std::string::npos) << r.output;
+  EXPECT_FALSE(fs::exists(dir_ / "bad_eval"));  // no half-written results
 }
 
 }  // namespace

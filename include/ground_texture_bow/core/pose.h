@@ -92,8 +92,14 @@ struct MapAccess {
   std::function<Pose2D(uint32_t image)> pose;
 };
 
+// Verifies retrieved candidates (with their matches) in order until one gives a pose with
+// enough inliers.
+Localization VerifyCandidates(const std::vector<QueryResult>& candidates, const BowVector& query,
+                              const MapAccess& map, const ImageGeometry& geometry,
+                              const LocalizationOptions& options);
+
 // Global localization: retrieves the top K candidates of `query`, then verifies them in order
-// until one gives a pose with enough inliers.
+// (VerifyCandidates).
 Localization Localize(const BowDatabase& database, const BowVector& query, const MapAccess& map,
                       const ImageGeometry& geometry, const LocalizationOptions& options);
 

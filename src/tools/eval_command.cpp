@@ -1,0 +1,622 @@
+// gtbow eval: every metric of shared/DATASET_FORMAT.md on a dataset, for one or more retrieval
+// presets: retrieval (mAP@1000, Recall@N, score separation), global localization (success at
+// 4.8 mm and 1.5 degrees, error distribution) and timing laid out like the paper's Table II.
+// Writes results.json (every number), summary.md (ours next to the paper's) and, through
+// scripts/plot_eval.py, PNG plots.
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <fstream>
+#include <iomanip>
+#include <memory>
+#include <mutex>
+#include <random>
+#include <sstream>
+#include <string>
+#include <thread>
+
+#include "commands.h"
+#include "ground_texture_bow/core/binary_io.h"
+#include "ground_texture_bow/core/config.h"
+#include "ground_texture_bow/core/database.h"
+#include "ground_texture_bow/core/file_util.h"
+#include "ground_texture_bow/core/metrics.h"
+#include "ground_texture_bow/core/pose.h"
+#include "ground_texture_bow/core/progress.h"
+#include "image_source.h"
+#include "paper_reference.h"
+
+namespace fs = std::filesystem;
+
+namespace gtbow {
+namespace tools {
+
+namespace {
+
+constexpr size_t kRecallN[] = {1, 2, 5, 10, 20, 50, 100};
+constexpr double kSuccessMeters = 0.0048;
+constexpr double kSuccessRadians = 1.5 * M_PI / 180.0;
+
+struct EvalArgs {
+  std::string dataset;
+  std::string vocab;
+  std::vector<std::string> presets;
+  std::string out = "gtbow_eval";
+  std::vector<std::string> query_splits;
+  size_t max_queries = 0;
+  size_t timing_queries = 100;
+  int candidates = 5;
+  int threads = 0;
+  std::string cache = DefaultCacheDir().string();
+  bool no_cache = false;
+  bool no_plots = false;
+  std::string dump_rankings;
+  std::string dump_poses;
+  bool quiet = false;
+};
+
+// A minimal JSON writer: values are appended in order; the caller keeps the structure valid.
+class Json {
+ public:
+  Json& Key(const std::string& k) {
+    Sep();
+    s_ << Quote(k) << ": ";
+    fresh_ = true;
+    return *this;
+  }
+  Json& Str(const std::string& v) { return Raw(Quote(v)); }
+  Json& Num(double v) {
+    if (!std::isfinite(v)) return Raw("null");
+    char b[32];
+    std::snprintf(b, sizeof(b), "%.9g", v);
+    return Raw(b);
+  }
+  Json& Int(long long v) { return Raw(std::to_string(v)); }
+  Json& Bool(bool v) { return Raw(v ? "true" : "false"); }
+  Json& Open(char c) {
+    Sep();
+    s_ << c;
+    fresh_ = true;
+    return *this;
+  }
+  Json& Close(char c) {
+    s_ << c;
+    fresh_ = false;
+    return *this;
+  }
+  Json& Nums(const std::vector<double>& v) {
+    Open('[');
+    for (double x : v) Num(x);
+    return Close(']');
+  }
+  std::string str() const { return s_.str() + "\n"; }
+
+ private:
+  Json& Raw(const std::string& v) {
+    Sep();
+    s_ << v;
+    return *this;
+  }
+  void Sep() {
+    if (!fresh_) s_ << ", ";
+    fresh_ = false;
+  }
+  static std::string Quote(const std::string& v) {
+    std::string o = "\"";
+    for (char ch : v) {
+      if (ch == '"' || ch == '\\') o += '\\';
+      if (static_cast<unsigned char>(ch) < 0x20) {
+        char b[8];
+        std::snprintf(b, sizeof(b), "\\u%04x", ch);
+        o += b;
+        continue;
+      }
+      o += ch;
+    }
+    return o + "\"";
+  }
+  std::ostringstream s_;
+  bool fresh_ = true;
+};
+
+struct Stat {
+  double mean = 0, sd = 0, median = 0, p95 = 0;
+};
+
+Stat Stats(std::vector<double> v) {
+  Stat s;
+  if (v.empty()) return s;
+  for (double x : v) s.mean += x / v.size();
+  for (double x : v) s.sd += (x - s.mean) * (x - s.mean) / v.size();
+  s.sd = std::sqrt(s.sd);
+  std::sort(v.begin(), v.end());
+  s.median = v[v.size() / 2];
+  s.p95 = v[std::min(v.size() - 1, v.size() * 95 / 100)];
+  return s;
+}
+
+double Ms(std::chrono::steady_clock::duration d) {
+  return std::chrono::duration<double, std::milli>(d).count();
+}
+
+// Age of a query split in days: dataset.yaml's query_days, else the digits of query_dayNNN.
+double SplitDay(const DatasetInfo& info, const std::string& split) {
+  const auto it = info.query_days.find(split);
+  if (it != info.query_days.end()) return it->second;
+  const auto p = split.find("day");
+  if (p != std::string::npos && p + 3 < split.size()) {
+    try {
+      return std::stod(split.substr(p + 3));
+    } catch (const std::exception&) {
+    }
+  }
+  return NAN;
+}
+
+struct SplitResult {
+  std::string name;
+  double day = NAN;
+  size_t queries = 0, counted = 0, no_relevant = 0;
+  double map = 0;
+  std::vector<double> recall;  // at kRecallN
+  Separation separation;
+  std::vector<double> rel_scores, irr_scores;
+  size_t localized = 0;                 // within 4.8 mm and 1.5 degrees
+  size_t estimated = 0;                 // gave a pose at all
+  std::vector<double> err_mm, err_deg;  // of every estimate
+};
+
+struct PresetResult {
+  std::string name, file;
+  std::string vocab_desc;
+  std::vector<SplitResult> splits;
+  Stat extract, transform, insert, query, pose, total;
+  size_t timed = 0;
+  size_t db_images = 0;
+  RetrievalConfig config;
+};
+
+std::string PresetName(const std::string& file) {
+  return file.empty() ? "high_accuracy (built-in defaults)" : fs::path(file).stem().string();
+}
+
+// The vocabulary for a configuration: the given file, or one trained on the dataset's train
+// split (cached under the cache directory, keyed by the training images and options).
+std::unique_ptr<Vocabulary> GetVocabulary(const EvalArgs& a, const RetrievalConfig& c,
+                                          const Dataset& ds, std::string* desc) {
+  if (!a.vocab.empty()) {
+    *desc = a.vocab;
+    return Vocabulary::Load(a.vocab);
+  }
+  const auto splits = ds.SplitNames();
+  if (std::find(splits.begin(), splits.end(), "train") == splits.end()) {
+    throw std::runtime_error(a.dataset + ": no train split to train a vocabulary on; give --vocab FILE");
+  }
+  ImageSource src = ImageSource::FromDataset(a.dataset, "train");
+  RetrievalConfig key;
+  key.vocabulary = c.vocabulary;
+  key.vocabulary.threads = 0;
+  key.bow.num_size_bins = c.bow.num_size_bins;
+  const std::string opt = FormatRetrievalConfig(key) + FormatRetrievalConfig(RetrievalConfig{c.features, {}, {}});
+  char name[80];
+  std::snprintf(name, sizeof(name), "vocabulary-%016llx-%016llx.gtvoc",
+                static_cast<unsigned long long>(src.ContentKey()),
+                static_cast<unsigned long long>(Checksum64(opt.data(), opt.size())));
+  const fs::path cached = a.no_cache ? fs::path() : fs::path(a.cache) / name;
+  if (!cached.empty() && fs::exists(cached)) {
+    try {
+      *desc = "trained on the train split (cached " + cached.string() + ")";
+      return Vocabulary::Load(cached);
+    } catch (const std::exception& e) {
+      std::fprintf(stderr, "vocabulary cache: %s; training again\n", e.what());
+    }
+  }
+  const auto feats = ExtractAllCached(src, c.features, a.no_cache ? fs::path() : fs::path(a.cache),
+                                      a.threads, !a.quiet);
+  RetrievalConfig tc = c;
+  tc.vocabulary.threads = a.threads;
+  auto vocab = TrainOnFeatures(tc, feats, !a.quiet);
+  *desc = "trained on the train split (" + std::to_string(src.size()) + " images)";
+  if (!cached.empty()) {
+    try {
+      fs::create_directories(cached.parent_path());
+      vocab->Save(cached);
+    } catch (const std::exception& e) {
+      std::fprintf(stderr, "vocabulary cache: not saved (%s)\n", e.what());
+    }
+  }
+  return vocab;
+}
+
+// Runs f(i) for i in [0, n) on `threads` threads.
+template <typename F>
+void ParallelFor(size_t n, int threads, F&& f) {
+  const int nt = threads > 0 ? threads : static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
+  std::atomic<size_t> next{0};
+  std::vector<std::thread> pool;
+  std::exception_ptr error;
+  std::mutex m;
+  for (int t = 0; t < nt; ++t) {
+    pool.emplace_back([&]() {
+      for (size_t i; (i = next.fetch_add(1)) < n;) {
+        try {
+          f(i);
+        } catch (...) {
+          std::lock_guard<std::mutex> lock(m);
+          if (!error) error = std::current_exception();
+          next = n;
+        }
+      }
+    });
+  }
+  for (auto& t : pool) t.join();
+  if (error) std::rethrow_exception(error);
+}
+
+PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const Dataset& ds,
+                        const std::vector<std::string>& splits, std::string* rankings,
+                        std::string* poses) {
+  PresetResult pr;
+  pr.file = preset_file;
+  pr.name = PresetName(preset_file);
+  const RetrievalConfig c = preset_file.empty() ? RetrievalConfig{} : LoadRetrievalConfig(preset_file);
+  pr.config = c;
+  const ImageGeometry geo = ds.info().geometry;
+  const fs::path cache = a.no_cache ? fs::path() : fs::path(a.cache);
+  if (!a.quiet) std::fprintf(stderr, "== preset %s\n", pr.name.c_str());
+
+  auto vocab = GetVocabulary(a, c, ds, &pr.vocab_desc);
+  vocab->set_search(c.vocabulary.ann, c.vocabulary.nprobe);
+  const BowEncoder enc(*vocab, c.bow);
+  ImageSource db_src = ImageSource::FromDataset(a.dataset, "database");
+  const auto db_feats = ExtractAllCached(db_src, c.features, cache, a.threads, !a.quiet);
+  const auto db_vecs = EncodeAll(enc, db_feats, a.threads, !a.quiet);
+  BowDatabase db(enc.num_rows(), c.bow, vocab->fingerprint());
+  std::vector<Pose2D> db_pose;
+  for (size_t i = 0; i < db_vecs.size(); ++i) {
+    db.Add(db_vecs[i]);
+    db_pose.push_back(ds.PoseOf(db_src.name(i)));
+  }
+  pr.db_images = db.size();
+  MapAccess map;
+  map.keypoints = [&](uint32_t i) -> const std::vector<Keypoint>& { return db_feats.at(i).keypoints; };
+  map.pose = [&](uint32_t i) { return db_pose.at(i); };
+  LocalizationOptions lo;
+  lo.candidates = a.candidates;
+
+  // Retrieval and localization, split by split.
+  std::vector<ImageSource> q_sources;
+  std::vector<std::vector<ImageFeatures>> q_feats_all;
+  for (const auto& split : splits) {
+    ImageSource q_src = ImageSource::FromDataset(a.dataset, split);
+    q_src.Subsample(a.max_queries);
+    auto q_feats = ExtractAllCached(q_src, c.features, cache, a.threads, !a.quiet);
+    const auto q_vecs = EncodeAll(enc, q_feats, a.threads, !a.quiet);
+    SplitResult sr;
+    sr.name = split;
+    sr.day = SplitDay(ds.info(), split);
+    sr.queries = q_src.size();
+    struct PerQuery {
+      bool counted = false;
+      double ap = 0;
+      std::vector<double> hits;
+      std::vector<std::pair<double, bool>> top10;
+      std::vector<QueryResult> ranking;
+      Localization loc;
+      Pose2D truth;
+    };
+    std::vector<PerQuery> per(q_src.size());
+    ProgressBar bar("queries " + split, q_src.size(), !a.quiet);
+    ParallelFor(q_src.size(), a.threads, [&](size_t qi) {
+      PerQuery& p = per[qi];
+      p.truth = ds.PoseOf(q_src.name(qi));
+      size_t num_rel = 0;
+      for (const auto& dp : db_pose) num_rel += IsRelevant(p.truth, dp, geo) ? 1 : 0;
+      p.ranking = db.Query(q_vecs[qi], 1000, false);
+      p.loc = Localize(db, q_vecs[qi], map, geo, lo);
+      if (num_rel > 0) {
+        p.counted = true;
+        std::vector<bool> rel;
+        for (size_t k = 0; k < p.ranking.size(); ++k) {
+          rel.push_back(IsRelevant(p.truth, db_pose[p.ranking[k].image], geo));
+          if (k < 10) p.top10.emplace_back(p.ranking[k].score, rel.back());
+        }
+        p.ap = AveragePrecision(rel, num_rel);
+        for (size_t n : kRecallN) p.hits.push_back(HitAtN(rel, n));
+      }
+      bar.Add();
+    });
+    bar.Finish();
+    sr.recall.assign(std::size(kRecallN), 0.0);
+    for (size_t qi = 0; qi < per.size(); ++qi) {
+      const PerQuery& p = per[qi];
+      if (p.counted) {
+        ++sr.counted;
+        sr.map += p.ap;
+        for (size_t k = 0; k < p.hits.size(); ++k) sr.recall[k] += p.hits[k];
+        for (const auto& [score, rel] : p.top10) (rel ? sr.rel_scores : sr.irr_scores).push_back(score);
+      } else {
+        ++sr.no_relevant;
+      }
+      if (p.loc.success) {
+        ++sr.estimated;
+        const Pose2D& e = p.loc.estimate.floor_from_query;
+        const double em = std::hypot(e.x - p.truth.x, e.y - p.truth.y);
+        const double er = std::abs(WrapAngle(e.theta - p.truth.theta));
+        sr.err_mm.push_back(1000.0 * em);
+        sr.err_deg.push_back(er * 180.0 / M_PI);
+        sr.localized += em <= kSuccessMeters && er <= kSuccessRadians ? 1 : 0;
+      }
+      const std::string& qn = q_src.name(qi);
+      char b[256];
+      for (size_t k = 0; k < p.ranking.size(); ++k) {
+        std::snprintf(b, sizeof(b), ",%zu,%s,%.9g\n", k + 1, db_src.name(p.ranking[k].image).c_str(),
+                      p.ranking[k].score);
+        *rankings += qn + b;
+      }
+      if (p.loc.success) {
+        const Pose2D& e = p.loc.estimate.floor_from_query;
+        std::snprintf(b, sizeof(b), ",%.6f,%.6f,%.6f,%d\n", e.x, e.y, e.theta, p.loc.estimate.inliers);
+        *poses += qn + b;
+      } else {
+        *poses += qn + ",,,,0\n";
+      }
+    }
+    const double n = static_cast<double>(std::max<size_t>(1, sr.counted));
+    sr.map /= n;
+    for (double& r : sr.recall) r /= n;
+    sr.separation = ScoreSeparation(sr.rel_scores, sr.irr_scores);
+    pr.splits.push_back(std::move(sr));
+    q_sources.push_back(std::move(q_src));
+    q_feats_all.push_back(std::move(q_feats));
+  }
+
+  // Timing: random queries against the full database, one thread, stage by stage.
+  std::vector<std::pair<size_t, size_t>> pool;  // (split, query)
+  for (size_t s = 0; s < q_sources.size(); ++s)
+    for (size_t i = 0; i < q_sources[s].size(); ++i) pool.emplace_back(s, i);
+  std::mt19937_64 rng(7);
+  std::shuffle(pool.begin(), pool.end(), rng);
+  pool.resize(std::min(pool.size(), a.timing_queries));
+  std::vector<double> ex, tr, in, qu, po, to;
+  const FeatureExtractor fx(c.features);
+  ProgressBar bar("timing", pool.size(), !a.quiet);
+  for (const auto& [s, i] : pool) {
+    const cv::Mat img = q_sources[s].LoadGray(i);
+    const auto t0 = std::chrono::steady_clock::now();
+    const ImageFeatures f = fx.Extract(img);
+    const auto t1 = std::chrono::steady_clock::now();
+    const BowVector v = enc.Encode(f);
+    const auto t2 = std::chrono::steady_clock::now();
+    const auto results = db.Query(v, static_cast<size_t>(lo.candidates), true);
+    const auto t3 = std::chrono::steady_clock::now();
+    const Localization loc = VerifyCandidates(results, v, map, geo, lo);
+    const auto t4 = std::chrono::steady_clock::now();
+    const uint32_t id = db.Add(v);
+    const auto t5 = std::chrono::steady_clock::now();
+    db.Remove(id);
+    ex.push_back(Ms(t1 - t0));
+    tr.push_back(Ms(t2 - t1));
+    qu.push_back(Ms(t3 - t2));
+    po.push_back(Ms(t4 - t3));
+    in.push_back(Ms(t5 - t4));
+    to.push_back(Ms(t4 - t0));
+    (void)loc;
+    bar.Add();
+  }
+  bar.Finish();
+  pr.timed = pool.size();
+  pr.extract = Stats(ex);
+  pr.transform = Stats(tr);
+  pr.insert = Stats(in);
+  pr.query = Stats(qu);
+  pr.pose = Stats(po);
+  pr.total = Stats(to);
+  return pr;
+}
+
+void WriteStat(Json& j, const std::string& key, const Stat& s) {
+  j.Key(key).Open('{');
+  j.Key("mean_ms").Num(s.mean).Key("sd_ms").Num(s.sd).Key("median_ms").Num(s.median).Key("p95_ms").Num(s.p95);
+  j.Close('}');
+}
+
+std::string ToJson(const EvalArgs& a, const Dataset& ds, const std::vector<PresetResult>& results) {
+  Json j;
+  j.Open('{');
+  j.Key("dataset").Open('{');
+  j.Key("path").Str(fs::absolute(a.dataset).string());
+  j.Key("name").Str(ds.info().name).Key("surface").Str(ds.info().surface);
+  j.Key("image_width").Int(ds.info().geometry.width).Key("image_height").Int(ds.info().geometry.height);
+  j.Key("meters_per_pixel").Num(ds.info().geometry.meters_per_pixel);
+  j.Close('}');
+  j.Key("protocol").Open('{');
+  j.Key("success_position_mm").Num(kSuccessMeters * 1000).Key("success_heading_deg").Num(1.5);
+  j.Key("recall_n").Open('[');
+  for (size_t n : kRecallN) j.Int(static_cast<long long>(n));
+  j.Close(']');
+  j.Key("localization_candidates").Int(a.candidates);
+  j.Close('}');
+  j.Key("presets").Open('[');
+  for (const auto& pr : results) {
+    j.Open('{');
+    j.Key("name").Str(pr.name).Key("file").Str(pr.file).Key("vocabulary").Str(pr.vocab_desc);
+    j.Key("configuration").Str(FormatRetrievalConfig(pr.config));
+    j.Key("database_images").Int(static_cast<long long>(pr.db_images));
+    j.Key("splits").Open('[');
+    for (const auto& s : pr.splits) {
+      j.Open('{');
+      j.Key("name").Str(s.name).Key("day").Num(s.day);
+      j.Key("queries").Int(static_cast<long long>(s.queries));
+      j.Key("queries_with_relevant").Int(static_cast<long long>(s.counted));
+      j.Key("queries_without_relevant").Int(static_cast<long long>(s.no_relevant));
+      j.Key("map_at_1000").Num(s.map);
+      j.Key("recall_at_n").Nums(s.recall);
+      j.Key("separation").Open('{').Key("threshold").Num(s.separation.threshold);
+      j.Key("kept_relevant").Num(s.separation.kept_relevant).Close('}');
+      j.Key("top10_scores_relevant").Nums(s.rel_scores);
+      j.Key("top10_scores_irrelevant").Nums(s.irr_scores);
+      j.Key("localization").Open('{');
+      j.Key("success_rate").Num(s.queries ? static_cast<double>(s.localized) / s.queries : NAN);
+      j.Key("correct").Int(static_cast<long long>(s.localized));
+      j.Key("estimated").Int(static_cast<long long>(s.estimated));
+      j.Key("position_error_mm").Nums(s.err_mm).Key("heading_error_deg").Nums(s.err_deg);
+      j.Close('}');
+      j.Close('}');
+    }
+    j.Close(']');
+    j.Key("timing").Open('{');
+    j.Key("queries").Int(static_cast<long long>(pr.timed));
+    WriteStat(j, "feature_extraction", pr.extract);
+    WriteStat(j, "bow_transform", pr.transform);
+    WriteStat(j, "database_insertion", pr.insert);
+    WriteStat(j, "database_query", pr.query);
+    WriteStat(j, "pose_estimation", pr.pose);
+    WriteStat(j, "end_to_end", pr.total);
+    j.Close('}');
+    j.Close('}');
+  }
+  j.Close(']');
+  j.Close('}');
+  return j.str();
+}
+
+const PaperTiming& PaperFor(const RetrievalConfig& c) {
+  if (c.vocabulary.kind == VocabularyKind::kHkm) return kPaperDbow;
+  return c.bow.soft_assignment == 1 ? kPaperFast : kPaperHigh;
+}
+
+double PaperSeparationFor(const RetrievalConfig& c) {
+  if (c.vocabulary.kind == VocabularyKind::kHkm) return kPaperSeparationDbow;
+  return c.bow.soft_assignment == 1 ? kPaperSeparationFast : kPaperSeparationHigh;
+}
+
+std::string ToMarkdown(const EvalArgs& a, const std::vector<PresetResult>& results) {
+  std::ostringstream md;
+  char b[512];
+  md << "# gtbow eval: " << a.dataset << "\n\n";
+  md << "Protocol: shared/DATASET_FORMAT.md. Localization verifies the top " << a.candidates
+     << " candidates; success is a position error of at most 4.8 mm and a heading error of at "
+        "most 1.5 degrees (no estimate counts as a failure).\n\n";
+  for (const auto& pr : results) {
+    md << "## " << pr.name << "\n\n";
+    md << "Database: " << pr.db_images << " images. Vocabulary: " << pr.vocab_desc << ".\n\n";
+    md << "| split | day | queries | mAP@1000 | R@1 | R@5 | R@10 | R@100 | separation (paper " << std::fixed
+       << std::setprecision(1) << 100 * PaperSeparationFor(pr.config)
+       << "%) | localized | median error |\n";
+    md << "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |\n";
+    for (const auto& s : pr.splits) {
+      std::vector<double> e = s.err_mm;
+      std::sort(e.begin(), e.end());
+      std::snprintf(b, sizeof(b), "| %s | %s | %zu | %.3f | %.3f | %.3f | %.3f | %.3f | %.1f%% | %.1f%% | %s |\n",
+                    s.name.c_str(), std::isfinite(s.day) ? std::to_string(static_cast<int>(s.day)).c_str() : "-",
+                    s.counted, s.map, s.recall[0], s.recall[2], s.recall[3], s.recall[6],
+                    100 * s.separation.kept_relevant,
+                    s.queries ? 100.0 * s.localized / s.queries : 0.0,
+                    e.empty() ? "-" : (std::to_string(e[e.size() / 2]).substr(0, 5) + " mm").c_str());
+      md << b;
+    }
+    const PaperTiming& p = PaperFor(pr.config);
+    md << "\nTiming over " << pr.timed << " random queries against the full database, one thread (ms; "
+       << "paper: " << p.name << ", i7-13700, 32,251 images):\n\n";
+    md << "| stage | paper mean ± sd | here mean ± sd | here median | here p95 |\n| --- | --- | --- | --- | --- |\n";
+    auto row = [&](const char* name, const double* paper, const Stat& s) {
+      if (paper != nullptr) {
+        std::snprintf(b, sizeof(b), "| %s | %.1f ± %.1f | %.3f ± %.3f | %.3f | %.3f |\n", name, paper[0], paper[1],
+                      s.mean, s.sd, s.median, s.p95);
+      } else {
+        std::snprintf(b, sizeof(b), "| %s | - | %.3f ± %.3f | %.3f | %.3f |\n", name, s.mean, s.sd, s.median, s.p95);
+      }
+      md << b;
+    };
+    row("feature extraction", p.extract, pr.extract);
+    row("BoW transform", p.transform, pr.transform);
+    row("database insertion", p.insert, pr.insert);
+    row("database query", p.query, pr.query);
+    row("pose estimation", nullptr, pr.pose);
+    row("end to end (extraction, transform, query, pose)", nullptr, pr.total);
+    std::snprintf(b, sizeof(b), "\nEnd-to-end localization rate: %.1f Hz (median), paper: over 5 Hz.\n\n",
+                  pr.total.median > 0 ? 1000.0 / pr.total.median : 0.0);
+    md << b;
+  }
+  return md.str();
+}
+
+void RunEval(const EvalArgs& a) {
+  const Dataset ds = Dataset::Load(a.dataset);
+  std::vector<std::string> splits = a.query_splits;
+  if (splits.empty()) {
+    for (const auto& s : ds.SplitNames()) {
+      if (s.rfind("query", 0) == 0) splits.push_back(s);
+    }
+  }
+  if (splits.empty()) throw std::runtime_error(a.dataset + ": no query splits (sequences/query*.txt)");
+  (void)ds.Split("database");  // a clear error now rather than after training
+  for (const auto& s : splits) (void)ds.Split(s);
+  std::vector<std::string> presets = a.presets;
+  if (presets.empty()) presets.emplace_back();
+  // Outputs are staged, so that a failed run leaves no half-written results.
+  const fs::path staging = StageDirectory(a.out, true);
+  std::vector<std::pair<std::string, std::string>> dumps;  // (path, contents)
+  try {
+    std::vector<PresetResult> results;
+    for (const auto& p : presets) {
+      std::string rankings = "query,rank,image,score\n", poses = "query,x,y,theta,inliers\n";
+      results.push_back(EvalPreset(a, p, ds, splits, &rankings, &poses));
+      // One file per preset: FILE itself for a single preset, FILE.<preset>.csv otherwise.
+      auto target = [&](const std::string& file) {
+        if (presets.size() == 1) return file;
+        fs::path f(file);
+        return (f.parent_path() / (f.stem().string() + "." + fs::path(p).stem().string() + f.extension().string())).string();
+      };
+      if (!a.dump_rankings.empty()) dumps.emplace_back(target(a.dump_rankings), std::move(rankings));
+      if (!a.dump_poses.empty()) dumps.emplace_back(target(a.dump_poses), std::move(poses));
+    }
+    WriteFileAtomic(staging / "results.json", ToJson(a, ds, results));
+    const std::string md = ToMarkdown(a, results);
+    WriteFileAtomic(staging / "summary.md", md);
+    for (const auto& [path, text] : dumps) WriteFileAtomic(path, text);
+    CommitStagedDirectory(staging, a.out);
+    std::printf("%s", md.c_str());
+  } catch (...) {
+    DiscardStagedDirectory(staging);
+    throw;
+  }
+  if (!a.no_plots) {
+    const std::string cmd = "/usr/bin/python3 " GTBOW_SCRIPTS_DIR "/plot_eval.py '" +
+                            (fs::path(a.out) / "results.json").string() + "' '" + a.out + "'";
+    if (std::system(cmd.c_str()) != 0) {
+      std::fprintf(stderr, "plots: %s failed (results.json and summary.md are written)\n", cmd.c_str());
+    }
+  }
+  std::printf("Results in %s: results.json, summary.md%s\n", a.out.c_str(), a.no_plots ? "" : ", *.png");
+}
+
+}  // namespace
+
+void RegisterEval(CLI::App& app) {
+  auto a = std::make_shared<EvalArgs>();
+  CLI::App* cmd = app.add_subcommand(
+      "eval", "Every metric of the evaluation protocol: retrieval, localization and timing");
+  cmd->add_option("--dataset", a->dataset, "Dataset (shared/DATASET_FORMAT.md) with database and query splits")->required();
+  cmd->add_option("--vocab", a->vocab, "Vocabulary file (default: train on the dataset's train split)");
+  cmd->add_option("--preset", a->presets, "Retrieval configuration YAML (repeatable); default: high accuracy");
+  cmd->add_option("-o,--out", a->out, "Output directory (results.json, summary.md, plots)")->capture_default_str();
+  cmd->add_option("--query-splits", a->query_splits, "Query splits (default: every query* split)")->delimiter(',');
+  cmd->add_option("--max-queries", a->max_queries, "At most this many queries per split (evenly spread)");
+  cmd->add_option("--timing-queries", a->timing_queries, "Random queries timed against the full database")->capture_default_str();
+  cmd->add_option("--candidates", a->candidates, "K: retrieved images verified by pose estimation")->capture_default_str();
+  cmd->add_option("-j,--threads", a->threads, "Threads for extraction and evaluation, 0 = all cores (timing uses one)");
+  cmd->add_option("--cache", a->cache, "Feature and vocabulary cache directory")->capture_default_str();
+  cmd->add_flag("--no-cache", a->no_cache, "Neither read nor write the cache");
+  cmd->add_flag("--no-plots", a->no_plots, "Skip the PNG plots");
+  cmd->add_option("--dump-rankings", a->dump_rankings, "CSV of every query's ranked results (query,rank,image,score; top 1000)");
+  cmd->add_option("--dump-poses", a->dump_poses, "CSV of every query's estimated pose (query,x,y,theta,inliers; empty pose: no estimate)");
+  cmd->add_flag("-q,--quiet", a->quiet, "No progress bars");
+  cmd->callback([a]() { RunEval(*a); });
+}
+
+}  // namespace tools
+}  // namespace gtbow
