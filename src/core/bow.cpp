@@ -38,6 +38,9 @@ void BowOptions::Check() const {
   need(soft_assignment >= 1 && soft_assignment <= 16, "soft_assignment must be in 1..16");
   need(sigma > 0 && std::isfinite(sigma), "sigma must be positive");
   need(orientation_bins >= 1 && orientation_bins <= 64, "orientation_bins must be in 1..64");
+  // Orientation votes are products q_w d_w c_q c_d: they are defined for the dot product only.
+  need(!(orientation_verification && scoring == Scoring::kDbowL1),
+       "orientation_verification needs scoring: dot (votes are products of weights)");
 }
 
 std::vector<float> SizePercentileThresholds(std::vector<float> sizes, int bins) {

@@ -39,6 +39,17 @@ constexpr size_t kRecallN[] = {1, 2, 5, 10, 20, 50, 100};
 constexpr double kSuccessMeters = 0.0048;
 constexpr double kSuccessRadians = 1.5 * M_PI / 180.0;
 
+// The paper's Table I rows and the presets (under config/) that reproduce them.
+constexpr std::pair<const char*, const char*> kAblation[] = {
+    {"DBoW", "dbow_baseline.yaml"},
+    {"DBoW + SB", "ablation/dbow_sb.yaml"},
+    {"DBoW + AKM", "ablation/dbow_akm.yaml"},
+    {"DBoW + AKM + SA (r=3)", "ablation/dbow_akm_sa.yaml"},
+    {"DBoW + OV", "ablation/dbow_ov.yaml"},
+    {"Ours Fast", "fast.yaml"},
+    {"Ours", "high_accuracy.yaml"},
+};
+
 struct EvalArgs {
   std::string dataset;
   std::string vocab;
@@ -52,6 +63,8 @@ struct EvalArgs {
   std::string cache = DefaultCacheDir().string();
   bool no_cache = false;
   bool no_plots = false;
+  bool ablation = false;
+  int words = 0;
   std::string dump_rankings;
   std::string dump_poses;
   bool quiet = false;
@@ -170,6 +183,7 @@ struct SplitResult {
 
 struct PresetResult {
   std::string name, file;
+  std::string table_row;  // the paper's Table I row this preset reproduces (--ablation)
   std::string vocab_desc;
   std::vector<SplitResult> splits;
   Stat extract, transform, insert, query, pose, total;
@@ -187,8 +201,18 @@ std::string PresetName(const std::string& file) {
 std::unique_ptr<Vocabulary> GetVocabulary(const EvalArgs& a, const RetrievalConfig& c,
                                           const Dataset& ds, std::string* desc) {
   if (!a.vocab.empty()) {
-    *desc = a.vocab;
-    return Vocabulary::Load(a.vocab);
+    // A given vocabulary serves every preset of its kind and metric; others are trained.
+    auto v = Vocabulary::Load(a.vocab);
+    if (v->kind() == c.vocabulary.kind && v->metric() == c.vocabulary.metric) {
+      *desc = a.vocab;
+      return v;
+    }
+    if (!a.ablation) {
+      throw std::runtime_error(a.vocab + " is a " + VocabularyKindName(v->kind()) + "/" +
+                               MetricName(v->metric()) + " vocabulary; the preset needs " +
+                               VocabularyKindName(c.vocabulary.kind) + "/" +
+                               MetricName(c.vocabulary.metric));
+    }
   }
   const auto splits = ds.SplitNames();
   if (std::find(splits.begin(), splits.end(), "train") == splits.end()) {
@@ -261,7 +285,8 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
   PresetResult pr;
   pr.file = preset_file;
   pr.name = PresetName(preset_file);
-  const RetrievalConfig c = preset_file.empty() ? RetrievalConfig{} : LoadRetrievalConfig(preset_file);
+  RetrievalConfig c = preset_file.empty() ? RetrievalConfig{} : LoadRetrievalConfig(preset_file);
+  if (a.words > 0 && c.vocabulary.kind == VocabularyKind::kAkm) c.vocabulary.num_words = a.words;
   pr.config = c;
   const ImageGeometry geo = ds.info().geometry;
   const fs::path cache = a.no_cache ? fs::path() : fs::path(a.cache);
@@ -443,6 +468,7 @@ std::string ToJson(const EvalArgs& a, const Dataset& ds, const std::vector<Prese
   for (const auto& pr : results) {
     j.Open('{');
     j.Key("name").Str(pr.name).Key("file").Str(pr.file).Key("vocabulary").Str(pr.vocab_desc);
+    j.Key("table_i_row").Str(pr.table_row);
     j.Key("configuration").Str(FormatRetrievalConfig(pr.config));
     j.Key("database_images").Int(static_cast<long long>(pr.db_images));
     j.Key("splits").Open('[');
@@ -500,6 +526,28 @@ std::string ToMarkdown(const EvalArgs& a, const std::vector<PresetResult>& resul
   md << "Protocol: shared/DATASET_FORMAT.md. Localization verifies the top " << a.candidates
      << " candidates; success is a position error of at most 4.8 mm and a heading error of at "
         "most 1.5 degrees (no estimate counts as a failure).\n\n";
+  if (!results.empty() && !results[0].table_row.empty()) {
+    md << "## Ablation (the paper's Table I)\n\nmAP@1000 per query split; the paper's column is "
+          "its HD Ground asphalt test set.\n\n| row | preset | paper mAP |";
+    for (const auto& s : results[0].splits) md << " " << s.name << " |";
+    md << "\n| --- | --- | --- |";
+    for (size_t k = 0; k < results[0].splits.size(); ++k) md << " --- |";
+    md << "\n";
+    for (const auto& pr : results) {
+      double paper = NAN;
+      for (const auto& r : kPaperAblation) {
+        if (pr.table_row == r.name) paper = r.map;
+      }
+      std::snprintf(b, sizeof(b), "| %s | %s | %.3f |", pr.table_row.c_str(), pr.name.c_str(), paper);
+      md << b;
+      for (const auto& s : pr.splits) {
+        std::snprintf(b, sizeof(b), " %.3f |", s.map);
+        md << b;
+      }
+      md << "\n";
+    }
+    md << "\n";
+  }
   for (const auto& pr : results) {
     md << "## " << pr.name << "\n\n";
     md << "Database: " << pr.db_images << " images. Vocabulary: " << pr.vocab_desc << ".\n\n";
@@ -556,7 +604,18 @@ void RunEval(const EvalArgs& a) {
   (void)ds.Split("database");  // a clear error now rather than after training
   for (const auto& s : splits) (void)ds.Split(s);
   std::vector<std::string> presets = a.presets;
-  if (presets.empty()) presets.emplace_back();
+  std::vector<std::string> rows(presets.size());
+  if (a.ablation) {
+    if (!presets.empty()) throw std::invalid_argument("--ablation runs its own presets; drop --preset");
+    for (const auto& [row, file] : kAblation) {
+      rows.push_back(row);
+      presets.push_back(std::string(GTBOW_CONFIG_DIR "/") + file);
+    }
+  }
+  if (presets.empty()) {
+    presets.emplace_back();
+    rows.emplace_back();
+  }
   // Outputs are staged, so that a failed run leaves no half-written results.
   const fs::path staging = StageDirectory(a.out, true);
   std::vector<std::pair<std::string, std::string>> dumps;  // (path, contents)
@@ -565,6 +624,7 @@ void RunEval(const EvalArgs& a) {
     for (const auto& p : presets) {
       std::string rankings = "query,rank,image,score\n", poses = "query,x,y,theta,inliers\n";
       results.push_back(EvalPreset(a, p, ds, splits, &rankings, &poses));
+      results.back().table_row = rows[results.size() - 1];
       // One file per preset: FILE itself for a single preset, FILE.<preset>.csv otherwise.
       auto target = [&](const std::string& file) {
         if (presets.size() == 1) return file;
@@ -612,6 +672,9 @@ void RegisterEval(CLI::App& app) {
   cmd->add_option("--cache", a->cache, "Feature and vocabulary cache directory")->capture_default_str();
   cmd->add_flag("--no-cache", a->no_cache, "Neither read nor write the cache");
   cmd->add_flag("--no-plots", a->no_plots, "Skip the PNG plots");
+  cmd->add_option("--words", a->words, "Override V of AKM vocabularies trained here (small datasets)");
+  cmd->add_flag("--ablation", a->ablation,
+                "Run the paper's Table I rows (presets under config/ and config/ablation/)");
   cmd->add_option("--dump-rankings", a->dump_rankings, "CSV of every query's ranked results (query,rank,image,score; top 1000)");
   cmd->add_option("--dump-poses", a->dump_poses, "CSV of every query's estimated pose (query,x,y,theta,inliers; empty pose: no estimate)");
   cmd->add_flag("-q,--quiet", a->quiet, "No progress bars");

@@ -19,9 +19,9 @@ struct PaperAblationRow {
   double map;
 };
 constexpr PaperAblationRow kPaperAblation[] = {
-    {"DBoW", 0.026},        {"DBoW + SB", 0.091},      {"DBoW + AKM", 0.073},
-    {"DBoW + AKM + SA (r=3)", 0.191}, {"DBoW + OV", 0.083}, {"Ours Fast", 0.258},
-    {"Ours", 0.559}};
+    {"DBoW", 0.026},      {"DBoW + SB", 0.091}, {"DBoW + AKM", 0.073},
+    {"DBoW + AKM + SA (r=3)", 0.191},            {"DBoW + OV", 0.083},
+    {"Ours Fast", 0.258}, {"Ours", 0.559}};
 
 // Score separation (§IV-E): true loop closures kept at the threshold rejecting 99% of false ones.
 constexpr double kPaperSeparationDbow = 0.325;

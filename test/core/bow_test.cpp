@@ -88,6 +88,9 @@ TEST(Bow, HardAssignmentIdfAndL1) {
   o.size_binning = SizeBinning::kNone;
   o.soft_assignment = 1;
   o.scoring = Scoring::kDbowL1;
+  o.orientation_verification = true;
+  EXPECT_THROW(BowEncoder(*v, o), std::invalid_argument);  // OV votes need the dot product
+  o.orientation_verification = false;
   const BowEncoder enc(*v, o);
   ImageFeatures f = OneKeypoint(10);
   ImageFeatures g = OneKeypoint(190);

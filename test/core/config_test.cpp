@@ -45,6 +45,7 @@ TEST(Config, RoundTripThroughYaml) {
   c.bow.soft_assignment = 2;
   c.vocabulary.num_words = 1234;
   c.bow.scoring = Scoring::kDbowL1;
+  c.bow.orientation_verification = false;
   const RetrievalConfig back = ParseRetrievalConfig(FormatRetrievalConfig(c), "x.yaml");
   EXPECT_EQ(back.bow.soft_assignment, 2);
   EXPECT_EQ(back.vocabulary.num_words, 1234);
