@@ -7,6 +7,7 @@ recall_at_n.png       Recall@N per preset, one panel per query split
 score_histograms.png  top-10 scores of true and false results with the 99% rejection threshold
 localization.png      localization success per query day, per preset
 position_errors.png   distribution of position errors of the estimates
+scaling.png           insertion and query time against database size (the paper's Fig. 3)
 """
 import json
 import math
@@ -105,6 +106,26 @@ def main():
     ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(os.path.join(out, "position_errors.png"), dpi=120)
+    plt.close(fig)
+
+    # Scaling: insertion and query time against database size.
+    fig, axes = plt.subplots(1, 2, figsize=(10, 3.8))
+    for p in presets:
+        pts = p.get("scaling", [])
+        if not pts:
+            continue
+        n = [x["images"] for x in pts]
+        axes[0].plot(n, [x["insertion"]["mean_ms"] for x in pts], marker="o", label=p["name"])
+        axes[1].plot(n, [x["query"]["median_ms"] for x in pts], marker="o", label=p["name"])
+    for ax, what in zip(axes, ["insertion (mean, ms)", "query (median, ms)"]):
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_xlabel("database images")
+        ax.set_ylabel(what)
+        ax.grid(True, which="both", alpha=0.3)
+    axes[1].legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(os.path.join(out, "scaling.png"), dpi=120)
     plt.close(fig)
 
 

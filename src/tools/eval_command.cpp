@@ -35,6 +35,7 @@ namespace tools {
 
 namespace {
 
+constexpr size_t kScalingQueries = 20;
 constexpr size_t kRecallN[] = {1, 2, 5, 10, 20, 50, 100};
 constexpr double kSuccessMeters = 0.0048;
 constexpr double kSuccessRadians = 1.5 * M_PI / 180.0;
@@ -181,7 +182,14 @@ struct SplitResult {
   std::vector<double> err_mm, err_deg;  // of every estimate
 };
 
+struct ScalingPoint {
+  size_t images = 0;
+  Stat insert;  // over the last (up to) 1,000 insertions
+  Stat query;   // kScalingQueries queries with matches, top K
+};
+
 struct PresetResult {
+  std::vector<ScalingPoint> scaling;
   std::string name, file;
   std::string table_row;  // the paper's Table I row this preset reproduces (--ablation)
   std::string vocab_desc;
@@ -298,11 +306,58 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
   ImageSource db_src = ImageSource::FromDataset(a.dataset, "database");
   const auto db_feats = ExtractAllCached(db_src, c.features, cache, a.threads, !a.quiet);
   const auto db_vecs = EncodeAll(enc, db_feats, a.threads, !a.quiet);
+  // Query images of every split, extracted (or read from the cache) before the database grows.
+  std::vector<ImageSource> q_sources;
+  std::vector<std::vector<BowVector>> q_vecs_all;
+  for (const auto& split : splits) {
+    ImageSource q_src = ImageSource::FromDataset(a.dataset, split);
+    q_src.Subsample(a.max_queries);
+    q_vecs_all.push_back(
+        EncodeAll(enc, ExtractAllCached(q_src, c.features, cache, a.threads, !a.quiet), a.threads, !a.quiet));
+    q_sources.push_back(std::move(q_src));
+  }
+
+  // The database, grown image by image: every insertion is timed, and at sizes 1,000, 2,000,
+  // 4,000, ... (from 250) a sample of queries is timed too (the paper's Fig. 3).
   BowDatabase db(enc.num_rows(), c.bow, vocab->fingerprint());
   std::vector<Pose2D> db_pose;
-  for (size_t i = 0; i < db_vecs.size(); ++i) {
-    db.Add(db_vecs[i]);
-    db_pose.push_back(ds.PoseOf(db_src.name(i)));
+  std::vector<BowVector> scaling_queries;
+  for (size_t s = 0; s < q_vecs_all.size() && scaling_queries.size() < kScalingQueries; ++s) {
+    for (size_t i = 0; i < q_vecs_all[s].size() && scaling_queries.size() < kScalingQueries; ++i) {
+      scaling_queries.push_back(q_vecs_all[s][i]);
+    }
+  }
+  size_t next_checkpoint = 250;
+  std::vector<double> insert_ms;
+  auto checkpoint = [&]() {
+    ScalingPoint sp;
+    sp.images = db.size();
+    const size_t n = std::min(insert_ms.size(), static_cast<size_t>(1000));
+    sp.insert = Stats(std::vector<double>(insert_ms.end() - n, insert_ms.end()));
+    std::vector<double> q;
+    for (const auto& v : scaling_queries) {
+      const auto t0 = std::chrono::steady_clock::now();
+      (void)db.Query(v, static_cast<size_t>(a.candidates), true);
+      q.push_back(Ms(std::chrono::steady_clock::now() - t0));
+    }
+    sp.query = Stats(q);
+    pr.scaling.push_back(sp);
+  };
+  {
+    ProgressBar bar("database", db_vecs.size(), !a.quiet);
+    for (size_t i = 0; i < db_vecs.size(); ++i) {
+      const auto t0 = std::chrono::steady_clock::now();
+      db.Add(db_vecs[i]);
+      insert_ms.push_back(Ms(std::chrono::steady_clock::now() - t0));
+      db_pose.push_back(ds.PoseOf(db_src.name(i)));
+      if (db.size() == next_checkpoint) {
+        checkpoint();
+        next_checkpoint *= 2;
+      }
+      bar.Add();
+    }
+    bar.Finish();
+    if (pr.scaling.empty() || pr.scaling.back().images != db.size()) checkpoint();
   }
   pr.db_images = db.size();
   MapAccess map;
@@ -312,13 +367,10 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
   lo.candidates = a.candidates;
 
   // Retrieval and localization, split by split.
-  std::vector<ImageSource> q_sources;
-  std::vector<std::vector<ImageFeatures>> q_feats_all;
-  for (const auto& split : splits) {
-    ImageSource q_src = ImageSource::FromDataset(a.dataset, split);
-    q_src.Subsample(a.max_queries);
-    auto q_feats = ExtractAllCached(q_src, c.features, cache, a.threads, !a.quiet);
-    const auto q_vecs = EncodeAll(enc, q_feats, a.threads, !a.quiet);
+  for (size_t si = 0; si < splits.size(); ++si) {
+    const std::string& split = splits[si];
+    const ImageSource& q_src = q_sources[si];
+    const std::vector<BowVector>& q_vecs = q_vecs_all[si];
     SplitResult sr;
     sr.name = split;
     sr.day = SplitDay(ds.info(), split);
@@ -394,8 +446,6 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
     for (double& r : sr.recall) r /= n;
     sr.separation = ScoreSeparation(sr.rel_scores, sr.irr_scores);
     pr.splits.push_back(std::move(sr));
-    q_sources.push_back(std::move(q_src));
-    q_feats_all.push_back(std::move(q_feats));
   }
 
   // Timing: random queries against the full database, one thread, stage by stage.
@@ -502,6 +552,14 @@ std::string ToJson(const EvalArgs& a, const Dataset& ds, const std::vector<Prese
     WriteStat(j, "pose_estimation", pr.pose);
     WriteStat(j, "end_to_end", pr.total);
     j.Close('}');
+    j.Key("scaling").Open('[');
+    for (const auto& sp : pr.scaling) {
+      j.Open('{').Key("images").Int(static_cast<long long>(sp.images));
+      WriteStat(j, "insertion", sp.insert);
+      WriteStat(j, "query", sp.query);
+      j.Close('}');
+    }
+    j.Close(']');
     j.Close('}');
   }
   j.Close(']');
@@ -588,6 +646,15 @@ std::string ToMarkdown(const EvalArgs& a, const std::vector<PresetResult>& resul
     std::snprintf(b, sizeof(b), "\nEnd-to-end localization rate: %.1f Hz (median), paper: over 5 Hz.\n\n",
                   pr.total.median > 0 ? 1000.0 / pr.total.median : 0.0);
     md << b;
+    md << "Scaling (the paper's Fig. 3): insertion over the last 1,000 insertions, query over "
+       << kScalingQueries << " queries, ms.\n\n| database images | insertion mean | insertion p95 | query median | query p95 |\n"
+       << "| --- | --- | --- | --- | --- |\n";
+    for (const auto& sp : pr.scaling) {
+      std::snprintf(b, sizeof(b), "| %zu | %.3f | %.3f | %.3f | %.3f |\n", sp.images, sp.insert.mean,
+                    sp.insert.p95, sp.query.median, sp.query.p95);
+      md << b;
+    }
+    md << "\n";
   }
   return md.str();
 }
