@@ -6,9 +6,12 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <sstream>
 #include <string>
 
 #include <gtest/gtest.h>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
 
 #include "test_util.h"
 
@@ -120,6 +123,89 @@ TEST_F(GtbowCli, TrainEvaluateAndBenchmarkOnASyntheticFloor) {
   EXPECT_NE(r.code, 0);
   EXPECT_NE(r.output.find("bad.gtvoc"), std::string::npos) << r.output;
   EXPECT_FALSE(fs::exists(dir_ / "bad_eval"));  // no half-written results
+}
+
+}  // namespace
+
+namespace {
+
+std::string ReadAll(const fs::path& p) {
+  std::ifstream in(p);
+  return std::string(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+}
+
+void WriteAll(const fs::path& p, const std::string& s) { std::ofstream(p) << s; }
+
+std::string Replace(std::string s, const std::string& from, const std::string& to) {
+  for (size_t i = 0; (i = s.find(from, i)) != std::string::npos; i += to.size()) s.replace(i, from.size(), to);
+  return s;
+}
+
+// A dataset in the shared format that gtbow did not make: another image size, colour JPEG
+// images, extra CSV columns, no synth.yaml, and only one of the standard query splits.
+TEST_F(GtbowCli, EvalRunsOnAForeignDatasetAndTrainsItsOwnVocabulary) {
+  const fs::path d = dir_ / "foreign";
+  Result r = RunGtbow("synth --out " + d.string() +
+                      " --area 0.25 0.2 --train 10 --queries 5 --days 0,90 --width 400 --height 300"
+                      " --meters-per-pixel 0.0004 -q");
+  ASSERT_EQ(r.code, 0) << r.output;
+  fs::remove(d / "synth.yaml");
+  fs::remove(d / "sequences" / "query_day090.txt");
+  for (const auto& e : fs::directory_iterator(d / "images")) {
+    const cv::Mat gray = cv::imread(e.path().string(), cv::IMREAD_GRAYSCALE);
+    cv::Mat colour;
+    cv::cvtColor(gray, colour, cv::COLOR_GRAY2BGR);
+    colour.col(0).setTo(cv::Scalar(0, 0, 255));  // not quite gray
+    fs::path jpg = e.path();
+    jpg.replace_extension(".jpg");
+    ASSERT_TRUE(cv::imwrite(jpg.string(), colour, {cv::IMWRITE_JPEG_QUALITY, 95}));
+    fs::remove(e.path());
+  }
+  std::string poses = Replace(ReadAll(d / "poses.csv"), ".png", ".jpg");
+  poses = Replace(poses, "image,x,y,theta", "theta,note,image,y,x");  // reordered, extra column
+  std::string reordered;
+  std::istringstream in(poses);
+  std::string line;
+  std::getline(in, line);
+  reordered = line + "\n";
+  while (std::getline(in, line)) {
+    if (line.empty() || line[0] == '#') continue;
+    std::array<std::string, 4> f;  // image,x,y,theta
+    std::istringstream ls(line);
+    for (auto& x : f) std::getline(ls, x, ',');
+    reordered += f[3] + ",seen," + f[0] + "," + f[2] + "," + f[1] + "\n";
+  }
+  WriteAll(d / "poses.csv", reordered);
+  for (const auto& e : fs::directory_iterator(d / "sequences")) {
+    WriteAll(e.path(), Replace(ReadAll(e.path()), ".png", ".jpg"));
+  }
+
+  r = RunGtbow("eval --dataset " + d.string() + " --words 600 --out " + Out("eval") +
+               " --timing-queries 3 --no-cache --no-plots -q");
+  ASSERT_EQ(r.code, 0) << r.output;
+  EXPECT_NE(r.output.find("| query_day000 | 0 | 5 |"), std::string::npos) << r.output;
+  EXPECT_EQ(r.output.find("query_day090"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("trained on the train split (10 images)"), std::string::npos) << r.output;
+  EXPECT_NE(ReadAll(dir_ / "eval" / "results.json").find("\"image_width\": 400"), std::string::npos);
+
+  // Bad datasets: a missing image, a split naming an image without a pose, an empty split.
+  std::string first;
+  std::istringstream seq(ReadAll(d / "sequences" / "query_day000.txt"));
+  while (first.empty() || first[0] == '#') std::getline(seq, first);
+  fs::rename(d / "images" / first, dir_ / "moved.jpg");
+  r = RunGtbow("eval --dataset " + d.string() + " --words 600 --out " + Out("e2") + " --no-cache -q");
+  EXPECT_NE(r.code, 0);
+  EXPECT_NE(r.output.find(first), std::string::npos) << r.output;
+  fs::rename(dir_ / "moved.jpg", d / "images" / first);
+  WriteAll(d / "sequences" / "query_day000.txt", "nowhere.jpg\n");
+  r = RunGtbow("eval --dataset " + d.string() + " --words 600 --out " + Out("e2") + " --no-cache -q");
+  EXPECT_NE(r.code, 0);
+  EXPECT_NE(r.output.find("nowhere.jpg"), std::string::npos) << r.output;
+  WriteAll(d / "sequences" / "query_day000.txt", "");
+  r = RunGtbow("eval --dataset " + d.string() + " --words 600 --out " + Out("e2") + " --no-cache -q");
+  EXPECT_NE(r.code, 0);
+  EXPECT_NE(r.output.find("query_day000"), std::string::npos) << r.output;
+  EXPECT_FALSE(fs::exists(dir_ / "e2"));
 }
 
 }  // namespace
