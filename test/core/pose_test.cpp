@@ -127,3 +127,27 @@ TEST(Pose, MatchesOfMergesPairsRepeatedOverRows) {
 
 }  // namespace
 }  // namespace gtbow
+
+namespace gtbow {
+namespace {
+
+TEST(Localize, AQueryWithoutFeaturesGetsNoEstimateAndAReason) {
+  BowOptions o;
+  o.size_binning = SizeBinning::kNone;
+  o.num_size_bins = 1;
+  BowDatabase db(16, o, 1);
+  MapAccess map;
+  std::vector<Keypoint> none;
+  map.keypoints = [&](uint32_t) -> const std::vector<Keypoint>& { return none; };
+  map.pose = [](uint32_t) { return Pose2D{}; };
+  const BowVector blank;  // what a featureless (blank) floor image encodes to
+  const Localization loc = Localize(db, blank, map, kGeo, LocalizationOptions{});
+  EXPECT_FALSE(loc.success);
+  EXPECT_EQ(loc.reason, "the query image has no features");
+  LocalizationOptions bad;
+  bad.candidates = 0;
+  EXPECT_THROW(Localize(db, blank, map, kGeo, bad), std::invalid_argument);
+}
+
+}  // namespace
+}  // namespace gtbow
