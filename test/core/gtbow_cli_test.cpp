@@ -19,22 +19,10 @@ namespace fs = std::filesystem;
 
 namespace {
 
-struct Result {
-  int code;
-  std::string output;
-};
+using Result = gtbow::testing_util::CommandResult;
 
 Result RunGtbow(const std::string& args) {
-  const std::string cmd = std::string(GTBOW_BIN) + " " + args + " 2>&1";
-  FILE* p = ::popen(cmd.c_str(), "r");
-  Result r{-1, ""};
-  if (p == nullptr) return r;
-  std::array<char, 4096> buf;
-  size_t n;
-  while ((n = fread(buf.data(), 1, buf.size(), p)) > 0) r.output.append(buf.data(), n);
-  const int status = ::pclose(p);
-  r.code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-  return r;
+  return gtbow::testing_util::RunCommand(std::string(GTBOW_BIN) + " " + args);
 }
 
 class GtbowCli : public gtbow::testing_util::TempDirTest {

@@ -24,7 +24,7 @@ struct PoseOptions {
   int max_iterations = 1000;        // RANSAC hypotheses at most
   double confidence = 0.999;        // stop once an all-inlier sample was this likely drawn
   double inlier_threshold = 3.0;    // pixels: residual of an inlier
-  int min_inliers = 10;             // fewer inliers: no estimate
+  int min_inliers = 6;              // fewer inliers: no estimate (6 of 2-point-consistent matches within 3 px: no false pose seen)
   bool weighted = true;             // paper: weighted sampling and scoring; false: plain RANSAC
   int refine_iterations = 3;        // least-squares refinement rounds (inliers re-selected)
   uint64_t seed = 1;                // sampling seed (estimates are deterministic)
