@@ -20,6 +20,12 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
 
+def save(fig, out, name):
+    fig.tight_layout()
+    fig.savefig(os.path.join(out, name + ".png"), dpi=120)
+    plt.close(fig)
+
+
 def main():
     if len(sys.argv) != 3:
         sys.exit(__doc__)
@@ -49,9 +55,7 @@ def main():
     for j in range(len(splits), rows * cols):
         axes[j // cols][j % cols].axis("off")
     axes[0][0].legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(os.path.join(out, "recall_at_n.png"), dpi=120)
-    plt.close(fig)
+    save(fig, out, "recall_at_n")
 
     # Score histograms (all splits pooled), one panel per preset.
     fig, axes = plt.subplots(1, len(presets), figsize=(4.5 * len(presets), 3.5), squeeze=False)
@@ -71,9 +75,7 @@ def main():
         ax.set_xlabel("score")
         ax.set_title(p["name"])
         ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(os.path.join(out, "score_histograms.png"), dpi=120)
-    plt.close(fig)
+    save(fig, out, "score_histograms")
 
     # Localization success per query day.
     fig, ax = plt.subplots(figsize=(6, 3.8))
@@ -88,9 +90,7 @@ def main():
     ax.set_ylim(0, 1.02)
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(os.path.join(out, "localization.png"), dpi=120)
-    plt.close(fig)
+    save(fig, out, "localization")
 
     # Position error distribution of the estimates (cumulative).
     fig, ax = plt.subplots(figsize=(6, 3.8))
@@ -104,9 +104,7 @@ def main():
     ax.set_ylabel("fraction of estimates")
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(os.path.join(out, "position_errors.png"), dpi=120)
-    plt.close(fig)
+    save(fig, out, "position_errors")
 
     # Scaling: insertion and query time against database size.
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.8))
@@ -124,9 +122,7 @@ def main():
         ax.set_ylabel(what)
         ax.grid(True, which="both", alpha=0.3)
     axes[1].legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(os.path.join(out, "scaling.png"), dpi=120)
-    plt.close(fig)
+    save(fig, out, "scaling")
 
 
 if __name__ == "__main__":

@@ -140,6 +140,13 @@ std::vector<QueryResult> BowDatabase::Query(const BowVector& q, size_t top_n,
   std::vector<float> qwc(q.keypoints.size());
   std::vector<uint8_t> qang(q.keypoints.size());
 
+  // Marks an image as scored, so that its accumulator is read and reset afterwards.
+  auto Touch = [&s](uint32_t img) {
+    if (!s.seen[img]) {
+      s.seen[img] = 1;
+      s.touched.push_back(img);
+    }
+  };
   size_t k = 0;
   for (const BowEntry& e : q.entries) {
     if (e.row >= num_rows_) continue;
@@ -157,10 +164,7 @@ std::vector<QueryResult> BowDatabase::Query(const BowVector& q, size_t top_n,
         uint32_t w = 0;
         for (; x < end && x->image() == img; ++x) w += x->weight;
         if (removed_[img]) continue;
-        if (!s.seen[img]) {
-          s.seen[img] = 1;
-          s.touched.push_back(img);
-        }
+        Touch(img);
         s.acc[img] += std::min(e.weight, static_cast<float>(w) * kWeightStep);
       }
     } else if (!ov) {
@@ -168,10 +172,7 @@ std::vector<QueryResult> BowDatabase::Query(const BowVector& q, size_t top_n,
       for (; x < end; ++x) {
         const uint32_t img = x->image();
         if (removed_[img]) continue;
-        if (!s.seen[img]) {
-          s.seen[img] = 1;
-          s.touched.push_back(img);
-        }
+        Touch(img);
         s.acc[img] += wq * static_cast<float>(x->weight);
       }
     } else {
@@ -182,10 +183,7 @@ std::vector<QueryResult> BowDatabase::Query(const BowVector& q, size_t top_n,
       for (; x < end; ++x) {
         const uint32_t img = x->image();
         if (removed_[img]) continue;
-        if (!s.seen[img]) {
-          s.seen[img] = 1;
-          s.touched.push_back(img);
-        }
+        Touch(img);
         float* acc = &s.acc[static_cast<size_t>(img) * bins];
         const uint8_t a = x->angle();
         const float w = static_cast<float>(x->weight);
