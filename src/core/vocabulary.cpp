@@ -495,8 +495,10 @@ class AkmVocabulary : public Vocabulary {
     flann::seed_random(static_cast<unsigned int>(seed));
     const flann::Matrix<E> data(centroids_.ptr<E>(), centroids_.rows, centroids_.cols);
     if constexpr (std::is_same<Space, BinarySpace>::value) {
+      // k-means++ centres: FLANN's random chooser draws from std::random_device, which no
+      // seed controls (searches then differed from run to run); k-means++ uses the seeded rand().
       index_ = std::make_unique<typename Space::FlannIndex>(
-          data, flann::HierarchicalClusteringIndexParams(32, flann::FLANN_CENTERS_RANDOM, trees_, 100));
+          data, flann::HierarchicalClusteringIndexParams(32, flann::FLANN_CENTERS_KMEANSPP, trees_, 100));
     } else {
       index_ = std::make_unique<typename Space::FlannIndex>(data, flann::KDTreeIndexParams(trees_));
     }

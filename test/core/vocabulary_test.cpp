@@ -252,3 +252,33 @@ TEST(Vocabulary, OptionsAndInputChecks) {
 
 }  // namespace
 }  // namespace gtbow
+
+namespace gtbow {
+namespace {
+
+// The Hamming search tree is built when a vocabulary is loaded; two builds must search alike
+// (FLANN's random centre chooser drew from std::random_device, so results changed per run).
+TEST_F(VocabularyFiles, HammingSearchIsTheSameAfterEveryLoad) {
+  VocabularyOptions o;
+  o.metric = Metric::kHamming;
+  o.num_words = 400;
+  o.kmeans_iterations = 2;
+  const Planted p = MakeBinary(200, 20, 40, 5);
+  const auto v = TrainVocabulary(o, p.data, p.image, false);
+  const auto file = dir_ / "ham.gtvoc";
+  v->Save(file);
+  std::vector<std::vector<WordHit>> runs;
+  for (int i = 0; i < 3; ++i) {
+    const auto back = Vocabulary::Load(file);
+    back->set_checks(4);  // an approximate search: it depends on the tree
+    std::vector<WordHit> hits;
+    back->Assign(p.data, 1, &hits);
+    runs.push_back(hits);
+  }
+  for (int i = 1; i < 3; ++i) {
+    for (size_t k = 0; k < runs[0].size(); ++k) ASSERT_EQ(runs[i][k].word, runs[0][k].word) << k;
+  }
+}
+
+}  // namespace
+}  // namespace gtbow
