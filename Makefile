@@ -29,9 +29,13 @@ build: deps $(WS)/src/ground_texture_bow
 	@$(CATKIN) > $(CURDIR)/build/build.log 2>&1 || { tail -n 60 $(CURDIR)/build/build.log; echo "build failed: full log in build/build.log"; exit 1; }
 	@echo "built: $(GTBOW)"
 
+# The built-in default: a small synthetic asphalt floor, then retrieval and global
+# localization of its day-0 to day-180 queries with the high-accuracy preset.
 demo: build
 	@$(GTBOW) synth --out build/demo_floor --area 0.5 0.4 --train 40 --queries 20 --force
 	@echo "Example images: build/demo_floor/images/database_000000.png, build/demo_floor/images/query_day180_000000.png"
+	@$(GTBOW) eval --dataset build/demo_floor --words 3000 --out build/demo_eval \
+	  --cache build/cache --timing-queries 20 -q
 
 test: deps $(WS)/src/ground_texture_bow
 	@bash scripts/run_tests.sh "$(WS)" "$(JOBS)"
