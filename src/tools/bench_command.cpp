@@ -22,6 +22,7 @@
 #include "ground_texture_bow/core/progress.h"
 #include "image_source.h"
 #include "paper_reference.h"
+#include "timing.h"
 
 namespace fs = std::filesystem;
 
@@ -45,27 +46,6 @@ struct BenchArgs {
   std::string markdown;
   bool quiet = false;
 };
-
-double Ms(std::chrono::steady_clock::duration d) {
-  return std::chrono::duration<double, std::milli>(d).count();
-}
-
-struct Stats {
-  double mean = 0, sd = 0, median = 0, p95 = 0;
-};
-
-Stats Summarise(std::vector<double> v) {
-  Stats s;
-  if (v.empty()) return s;
-  s.mean = std::accumulate(v.begin(), v.end(), 0.0) / v.size();
-  double var = 0;
-  for (double x : v) var += (x - s.mean) * (x - s.mean);
-  s.sd = std::sqrt(var / v.size());
-  std::sort(v.begin(), v.end());
-  s.median = v[v.size() / 2];
-  s.p95 = v[std::min(v.size() - 1, v.size() * 95 / 100)];
-  return s;
-}
 
 void RunOne(const BenchArgs& a, const std::string& preset, const RetrievalConfig& c,
             Vocabulary* vocab, double vocab_load_ms, const ImageSource& db_src,
@@ -163,10 +143,8 @@ void RunOne(const BenchArgs& a, const std::string& preset, const RetrievalConfig
   size_t agree = 0;
   for (size_t i = 0; i < approx.size(); ++i) agree += approx[i].word == exact[i].word ? 1 : 0;
 
-  const PaperTiming& paper = c.vocabulary.kind == VocabularyKind::kHkm ? kPaperDbow
-                          : c.bow.soft_assignment == 1                ? kPaperFast
-                                                                      : kPaperHigh;
-  const Stats ex = Summarise(ex_ms), tr = Summarise(tr_ms), in = Summarise(insert_ms), qu = Summarise(q_ms);
+  const PaperTiming& paper = PaperTimingFor(c);
+  const TimingStats ex = Summarise(ex_ms), tr = Summarise(tr_ms), in = Summarise(insert_ms), qu = Summarise(q_ms);
   char buf[4096];
   std::string md;
   auto line = [&](const char* fmt, auto... args) {

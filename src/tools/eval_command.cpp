@@ -27,6 +27,7 @@
 #include "ground_texture_bow/core/progress.h"
 #include "image_source.h"
 #include "paper_reference.h"
+#include "timing.h"
 
 namespace fs = std::filesystem;
 
@@ -136,26 +137,6 @@ class Json {
   bool fresh_ = true;
 };
 
-struct Stat {
-  double mean = 0, sd = 0, median = 0, p95 = 0;
-};
-
-Stat Stats(std::vector<double> v) {
-  Stat s;
-  if (v.empty()) return s;
-  for (double x : v) s.mean += x / v.size();
-  for (double x : v) s.sd += (x - s.mean) * (x - s.mean) / v.size();
-  s.sd = std::sqrt(s.sd);
-  std::sort(v.begin(), v.end());
-  s.median = v[v.size() / 2];
-  s.p95 = v[std::min(v.size() - 1, v.size() * 95 / 100)];
-  return s;
-}
-
-double Ms(std::chrono::steady_clock::duration d) {
-  return std::chrono::duration<double, std::milli>(d).count();
-}
-
 // Age of a query split in days: dataset.yaml's query_days, else the digits of query_dayNNN.
 double SplitDay(const DatasetInfo& info, const std::string& split) {
   const auto it = info.query_days.find(split);
@@ -189,8 +170,8 @@ struct SplitResult {
 
 struct ScalingPoint {
   size_t images = 0;
-  Stat insert;  // over the last (up to) 1,000 insertions
-  Stat query;   // kScalingQueries queries with matches, top K
+  TimingStats insert;  // over the last (up to) 1,000 insertions
+  TimingStats query;   // kScalingQueries queries with matches, top K
 };
 
 struct PresetResult {
@@ -199,7 +180,7 @@ struct PresetResult {
   std::string table_row;  // the paper's Table I row this preset reproduces (--ablation)
   std::string vocab_desc;
   std::vector<SplitResult> splits;
-  Stat extract, transform, insert, query, pose, total;
+  TimingStats extract, transform, insert, query, pose, total;
   size_t timed = 0;
   size_t db_images = 0;
   RetrievalConfig config;
@@ -339,14 +320,14 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
     ScalingPoint sp;
     sp.images = db.size();
     const size_t n = std::min(insert_ms.size(), static_cast<size_t>(1000));
-    sp.insert = Stats(std::vector<double>(insert_ms.end() - n, insert_ms.end()));
+    sp.insert = Summarise(std::vector<double>(insert_ms.end() - n, insert_ms.end()));
     std::vector<double> q;
     for (const auto& v : scaling_queries) {
       const auto t0 = std::chrono::steady_clock::now();
       (void)db.Query(v, static_cast<size_t>(a.candidates), true);
       q.push_back(Ms(std::chrono::steady_clock::now() - t0));
     }
-    sp.query = Stats(q);
+    sp.query = Summarise(q);
     pr.scaling.push_back(sp);
   };
   {
@@ -498,16 +479,16 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
   }
   bar.Finish();
   pr.timed = pool.size();
-  pr.extract = Stats(ex);
-  pr.transform = Stats(tr);
-  pr.insert = Stats(in);
-  pr.query = Stats(qu);
-  pr.pose = Stats(po);
-  pr.total = Stats(to);
+  pr.extract = Summarise(ex);
+  pr.transform = Summarise(tr);
+  pr.insert = Summarise(in);
+  pr.query = Summarise(qu);
+  pr.pose = Summarise(po);
+  pr.total = Summarise(to);
   return pr;
 }
 
-void WriteStat(Json& j, const std::string& key, const Stat& s) {
+void WriteStat(Json& j, const std::string& key, const TimingStats& s) {
   j.Key(key).Open('{');
   j.Key("mean_ms").Num(s.mean).Key("sd_ms").Num(s.sd).Key("median_ms").Num(s.median).Key("p95_ms").Num(s.p95);
   j.Close('}');
@@ -584,11 +565,6 @@ std::string ToJson(const EvalArgs& a, const Dataset& ds, const std::vector<Prese
   return j.str();
 }
 
-const PaperTiming& PaperFor(const RetrievalConfig& c) {
-  if (c.vocabulary.kind == VocabularyKind::kHkm) return kPaperDbow;
-  return c.bow.soft_assignment == 1 ? kPaperFast : kPaperHigh;
-}
-
 double PaperSeparationFor(const RetrievalConfig& c) {
   if (c.vocabulary.kind == VocabularyKind::kHkm) return kPaperSeparationDbow;
   return c.bow.soft_assignment == 1 ? kPaperSeparationFast : kPaperSeparationHigh;
@@ -643,11 +619,11 @@ std::string ToMarkdown(const EvalArgs& a, const std::vector<PresetResult>& resul
                     e.empty() ? "-" : (std::to_string(e[e.size() / 2]).substr(0, 5) + " mm").c_str());
       md << b;
     }
-    const PaperTiming& p = PaperFor(pr.config);
+    const PaperTiming& p = PaperTimingFor(pr.config);
     md << "\nTiming over " << pr.timed << " random queries against the full database, one thread (ms; "
        << "paper: " << p.name << ", i7-13700, 32,251 images):\n\n";
     md << "| stage | paper mean ± sd | here mean ± sd | here median | here p95 |\n| --- | --- | --- | --- | --- |\n";
-    auto row = [&](const char* name, const double* paper, const Stat& s) {
+    auto row = [&](const char* name, const double* paper, const TimingStats& s) {
       if (paper != nullptr) {
         std::snprintf(b, sizeof(b), "| %s | %.1f ± %.1f | %.3f ± %.3f | %.3f | %.3f |\n", name, paper[0], paper[1],
                       s.mean, s.sd, s.median, s.p95);

@@ -1,6 +1,8 @@
 // The paper's published figures (Wilhelm & Napp, ICRA 2025; shared/paper), printed next to ours.
 #pragma once
 
+#include "ground_texture_bow/core/config.h"
+
 namespace gtbow {
 namespace tools {
 
@@ -12,6 +14,13 @@ struct PaperTiming {
 constexpr PaperTiming kPaperDbow = {"DBoW", {19.1, 2.5}, {6.7, 0.0}, {0.0, 0.0}, {50, 5.5}};
 constexpr PaperTiming kPaperHigh = {"Ours (High Acc.)", {18.9, 2.5}, {24, 0.3}, {1.4, 0.5}, {149.6, 14.9}};
 constexpr PaperTiming kPaperFast = {"Ours (Fast)", {18.9, 2.5}, {23.1, 0.3}, {0.6, 0.4}, {31.9, 3.7}};
+
+// The paper's timed version nearest to a configuration: DBoW for an HKM vocabulary, else the
+// fast (r = 1) or high-accuracy version.
+inline const PaperTiming& PaperTimingFor(const RetrievalConfig& c) {
+  if (c.vocabulary.kind == VocabularyKind::kHkm) return kPaperDbow;
+  return c.bow.soft_assignment == 1 ? kPaperFast : kPaperHigh;
+}
 
 // Table I: mAP on the HD Ground asphalt test set.
 struct PaperAblationRow {
