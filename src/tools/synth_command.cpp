@@ -91,6 +91,16 @@ void RegisterSynth(CLI::App& app) {
       ->capture_default_str();
   cmd->add_option("--supersample", o.camera.supersample, "Anti-aliasing samples per axis (1-4)")
       ->capture_default_str();
+  cmd->add_option("--light", o.camera.light_directional,
+                  "Share of directional light from the camera-mounted lamp that shades the "
+                  "floor's relief (0 = ambient only, no relief shading)")
+      ->capture_default_str();
+  cmd->add_option("--light-elevation", o.camera.light_elevation,
+                  "Lamp elevation above the floor, radians")
+      ->capture_default_str();
+  cmd->add_option("--motion-blur", o.camera.motion_blur,
+                  "Longest motion blur along the driving direction, pixels")
+      ->capture_default_str();
   cmd->add_option("--only", o.only, "Render only these splits: train, database, queries")
       ->delimiter(',');
   cmd->add_flag("--ideal", args->ideal, "No sensor effects (noise, blur, vignetting, jitter)");

@@ -71,6 +71,30 @@ TEST(Camera, SensorEffects) {
   EXPECT_EQ(cv::countNonZero(clean != 128), 0);
 }
 
+// Motion blur smears along the driving direction (image u) only.
+TEST(Camera, MotionBlurIsAlongTheDrivingDirection) {
+  const Floor floor(Surface::kAsphalt, 2);
+  auto capture = [&](double blur) {
+    CameraOptions o;
+    o.motion_blur = blur;
+    o.noise_sigma = 0.0;
+    o.shot_noise = 0.0;
+    o.defocus_sigma = 0.0;
+    // Same shot seed: the same jitter and exposure, blur length differs.
+    return Camera(o).Capture(floor, {0.1, 0.1, 0.3}, {}, {}, 11);
+  };
+  auto energy = [](const cv::Mat& img, int dx, int dy) {
+    cv::Mat f, g;
+    img.convertTo(f, CV_32F);
+    cv::Sobel(f, g, CV_32F, dx, dy);
+    return cv::norm(g);
+  };
+  const cv::Mat sharp = capture(0.0), streaked = capture(8.0);
+  const double loss_u = energy(streaked, 1, 0) / energy(sharp, 1, 0);
+  const double loss_v = energy(streaked, 0, 1) / energy(sharp, 0, 1);
+  EXPECT_LT(loss_u, 0.9 * loss_v) << loss_u << " " << loss_v;
+}
+
 TEST(Camera, CheckNamesTheBadField) {
   auto expect_field = [](CameraOptions o, const std::string& field) {
     try {
@@ -92,6 +116,15 @@ TEST(Camera, CheckNamesTheBadField) {
   o = {};
   o.vignetting = 1.5;
   expect_field(o, "vignetting");
+  o = {};
+  o.motion_blur = -1;
+  expect_field(o, "motion_blur");
+  o = {};
+  o.light_directional = 2;
+  expect_field(o, "light_directional");
+  o = {};
+  o.light_elevation = 2;
+  expect_field(o, "light_elevation");
   EXPECT_NO_THROW(CameraOptions{}.Check());
 }
 

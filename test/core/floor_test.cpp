@@ -279,6 +279,54 @@ TEST(Floor, OrbRepeatsAcrossDaysAndDifferentPlacesDoNotMatch) {
   EXPECT_LE(diff2, 10);
 }
 
+// Relief shading by a directional light: a flat surface is untouched, relief is shaded
+// (brightness preserved on average), and a light from the opposite side shades it oppositely.
+TEST(Floor, ReliefIsShadedByTheLightAndTurnsWithIt) {
+  const Homography h = {0.00025, 0, 0, 0, 0.00025, 0, 0, 0, 1};
+  auto render = [&](Surface surface, double directional, double azimuth) {
+    FloorState st;
+    st.directional = directional;
+    st.light_azimuth = azimuth;
+    cv::Mat out;
+    Floor(surface, 3).Render(h, 320, 240, 2, st, &out);
+    return out;
+  };
+  // No relief on a flat floor: the light changes nothing.
+  EXPECT_EQ(cv::norm(render(Surface::kFlat, 0.0, 0.0), render(Surface::kFlat, 0.8, 0.0),
+                     cv::NORM_INF),
+            0.0);
+  const cv::Mat plain = render(Surface::kAsphalt, 0.0, 0.0);
+  const cv::Mat from_u = render(Surface::kAsphalt, 0.5, 0.0);
+  const cv::Mat from_minus_u = render(Surface::kAsphalt, 0.5, M_PI);
+  cv::Mat s0, s1;
+  cv::divide(from_u, plain + 1e-3, s0);
+  cv::divide(from_minus_u, plain + 1e-3, s1);
+  cv::Scalar m0, sd0;
+  cv::meanStdDev(s0, m0, sd0);
+  EXPECT_NEAR(m0[0], 1.0, 0.05);  // flat patches keep their reflectance
+  EXPECT_GT(sd0[0], 0.1);         // slopes are shaded
+  // Opposite lights shade the same slopes oppositely.
+  cv::Mat d0 = s0 - 1.0, d1 = s1 - 1.0;
+  const double corr = d0.dot(d1) / std::sqrt(d0.dot(d0) * d1.dot(d1));
+  EXPECT_LT(corr, -0.5) << corr;
+  // The shading follows the relief seen in the image: turning the camera by 180 degrees with a
+  // camera-fixed light is the same as lighting the unturned view from the other side.
+  cv::Mat turned;
+  const Pose2D centre{0.04, 0.03, 0.0};
+  const Camera cam(Ideal());
+  const cv::Mat a = cam.Capture(Floor(Surface::kAsphalt, 3), centre, {}, {}, 1);
+  const cv::Mat b = cam.Capture(Floor(Surface::kAsphalt, 3), {0.04, 0.03, M_PI}, {}, {}, 1);
+  cv::rotate(b, turned, cv::ROTATE_180);
+  cv::Mat diff;
+  cv::absdiff(a, turned, diff);
+  EXPECT_GT(cv::mean(diff)[0], 4.0);  // same place, same floor: only the shading differs
+  Lighting flipped;
+  flipped.azimuth_offset = M_PI;
+  const cv::Mat c = cam.Capture(Floor(Surface::kAsphalt, 3), centre, {}, flipped, 1);
+  cv::absdiff(c, turned, diff);
+  EXPECT_LT(cv::mean(diff)[0], 1.5);
+}
+
 TEST(Floor, RejectsBadInput) {
   const Floor floor(Surface::kAsphalt, 1);
   cv::Mat out;
@@ -290,6 +338,12 @@ TEST(Floor, RejectsBadInput) {
   EXPECT_THROW(floor.Render(h, 10, 10, 2, bad, &out), std::invalid_argument);
   const Homography singular = {0, 0, 0, 0, 0, 0, 0, 0, 1};
   EXPECT_THROW(floor.Render(singular, 10, 10, 2, {}, &out), std::invalid_argument);
+  FloorState light;
+  light.directional = 1.5;
+  EXPECT_THROW(floor.Render(h, 10, 10, 2, light, &out), std::invalid_argument);
+  light.directional = 0.5;
+  light.light_elevation = 0.0;
+  EXPECT_THROW(floor.Render(h, 10, 10, 2, light, &out), std::invalid_argument);
   EXPECT_THROW(ParseSurface("marble"), std::invalid_argument);
   EXPECT_EQ(ParseSurface(SurfaceName(Surface::kLaminate)), Surface::kLaminate);
 }

@@ -28,6 +28,11 @@ void CameraOptions::Check() const {
   need(scale_jitter >= 0, "scale_jitter must be >= 0");
   need(tilt_jitter >= 0, "tilt_jitter must be >= 0");
   need(max_scale_change >= 0 && max_scale_change < 0.5, "max_scale_change must be in [0, 0.5)");
+  need(motion_blur >= 0 && motion_blur <= 50, "motion_blur must be in [0, 50] pixels");
+  need(light_directional >= 0 && light_directional <= 1, "light_directional must be in [0, 1]");
+  need(std::isfinite(light_azimuth), "light_azimuth must be finite");
+  need(light_elevation > 0 && light_elevation <= M_PI / 2,
+       "light_elevation must be in (0, pi/2] radians");
 }
 
 Camera::Camera(const CameraOptions& options) : options_(options) { options_.Check(); }
@@ -67,9 +72,18 @@ cv::Mat Camera::Capture(const Floor& floor, const Pose2D& pose, const FloorState
     tilt_u = std::clamp(o.tilt_jitter * rng.Normal(), -lim, lim) / half;
     tilt_v = std::clamp(o.tilt_jitter * rng.Normal(), -lim, lim) / half;
   }
+  if (!(lighting.gamma > 0) || !(lighting.directional_scale >= 0) ||
+      !std::isfinite(lighting.azimuth_offset)) {
+    throw std::invalid_argument("Camera::Capture: lighting gamma must be > 0, directional_scale "
+                                ">= 0 and azimuth_offset finite");
+  }
+  FloorState lit = state;
+  lit.directional = std::clamp(o.light_directional * lighting.directional_scale, 0.0, 1.0);
+  lit.light_azimuth = o.light_azimuth + lighting.azimuth_offset;
+  lit.light_elevation = o.light_elevation;
   cv::Mat img;
   floor.Render(FloorFromImagePixel(pose, scale, tilt_u, tilt_v), o.width, o.height, o.supersample,
-               state, &img);
+               lit, &img);
   if (!o.sensor_effects) {
     cv::Mat out;
     img.convertTo(out, CV_8U, 255.0);
@@ -77,6 +91,18 @@ cv::Mat Camera::Capture(const Floor& floor, const Pose2D& pose, const FloorState
   }
   const double blur = o.defocus_sigma * rng.Uniform(0.7, 1.3);
   if (blur > 0.05) cv::GaussianBlur(img, img, cv::Size(0, 0), blur, blur, cv::BORDER_REFLECT);
+  // Motion blur: a box of random length (up to motion_blur pixels) along the driving direction.
+  const double streak = o.motion_blur * rng.Uniform();
+  if (streak > 0.1) {
+    const int taps = 2 * static_cast<int>(std::ceil(0.5 * streak)) + 1;
+    cv::Mat kernel(1, taps, CV_32F);
+    const double half = 0.5 * streak, c = 0.5 * (taps - 1);
+    for (int k = 0; k < taps; ++k) {  // the box's coverage of tap k's pixel
+      const double lo = std::max(k - c - 0.5, -half), hi = std::min(k - c + 0.5, half);
+      kernel.at<float>(0, k) = static_cast<float>(std::max(0.0, hi - lo) / streak);
+    }
+    cv::filter2D(img, img, -1, kernel, cv::Point(-1, -1), 0, cv::BORDER_REFLECT);
+  }
   const double gain = lighting.gain * (1.0 + o.exposure_jitter * rng.Normal());
   const double cu = 0.5 * (o.width - 1), cv_ = 0.5 * (o.height - 1);
   const double r2max = cu * cu + cv_ * cv_;
@@ -89,6 +115,8 @@ cv::Mat Camera::Capture(const Floor& floor, const Pose2D& pose, const FloorState
   const float vig = static_cast<float>(o.vignetting / r2max);
   const float gu = static_cast<float>(lighting.gradient_u / o.width);
   const float gv = static_cast<float>(lighting.gradient_v / o.height);
+  const float g = static_cast<float>(lighting.gamma);
+  const bool gamma_one = lighting.gamma == 1.0;
   for (int v = 0; v < img.rows; ++v) {
     const float* in = img.ptr<float>(v);
     const float* n = noise.ptr<float>(v);
@@ -99,7 +127,7 @@ cv::Mat Camera::Capture(const Floor& floor, const Pose2D& pose, const FloorState
       const float du = static_cast<float>(u - cu);
       const float illum = row_gain * (1.0f - vig * (du * du + dv * dv)) + row_gain * gu * du *
                           (1.0f - vig * (du * du + dv * dv));
-      const float val = in[u] * illum;
+      const float val = (gamma_one ? in[u] : std::pow(std::max(in[u], 0.0f), g)) * illum;
       const float sd = std::sqrt(var_read + shot * std::max(0.0f, val));
       const float q = (val + sd * n[u]) * 255.0f + 0.5f;
       dst[u] = static_cast<uint8_t>(std::min(255.0f, std::max(0.0f, q)));

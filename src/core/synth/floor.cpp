@@ -390,10 +390,12 @@ struct Canvas {
   std::vector<float> depth;
   cv::Mat grain_buf;
   float* grain;  // fine floor-fixed noise in [-1, 1], texture inside elements (set by the base)
+  std::vector<float> height;  // relief, mm above the binder (0 where a surface has none)
 
   Canvas(const View& v, float* out)
       : fine(v), region(v), value(out), depth(static_cast<size_t>(v.w) * v.h, -1.0f),
-        grain_buf(v.h, v.w, CV_32F), grain(grain_buf.ptr<float>()) {}
+        grain_buf(v.h, v.w, CV_32F), grain(grain_buf.ptr<float>()),
+        height(static_cast<size_t>(v.w) * v.h, 0.0f) {}
 
   cv::Mat Noise(double cell, uint32_t seed) const { return LatticeNoise(fine, cell, seed); }
 
@@ -429,6 +431,7 @@ struct StoneShape {
   float egg_u, egg_v;   // asymmetry
   float rough;          // outline roughness from the grain noise
   float bright, texture, coat, light_u, light_v, depth;
+  float height;         // protrusion above the binder at the centre, mm
 };
 
 // A run of `n` pixels of one image row starting at pixel index `idx`, whose floor offsets from
@@ -446,14 +449,17 @@ struct PixelRun {
 // same IEEE results, so the output stays byte-identical.
 GTBOW_AVX2_CLONE
 void StoneRuns(const PixelRun* runs, int count, float sx, float sy, float* __restrict depth,
-               float* __restrict value, const float* __restrict grain, const StoneShape& st) {
+               float* __restrict value, float* __restrict height, const float* __restrict grain,
+               const StoneShape& st) {
   const float ca = st.cos_a, sa = st.sin_a, ia = st.inv_a, ib = st.inv_b, eu = st.egg_u,
               ev = st.egg_v, rough = st.rough, bright = st.bright, amp = st.texture,
-              coat = st.coat, lu = st.light_u, lv = st.light_v, dep_k = st.depth;
+              coat = st.coat, lu = st.light_u, lv = st.light_v, dep_k = st.depth,
+              top = st.height;
   for (int r = 0; r < count; ++r) {
     const PixelRun run = runs[r];
     float* __restrict d = depth + run.idx;
     float* __restrict out = value + run.idx;
+    float* __restrict ht = height + run.idx;
     const float* __restrict gr = grain + run.idx;
     for (int k = 0; k < run.n; ++k) {
       const float dx = run.dx0 + k * sx, dy = run.dy0 + k * sy;
@@ -464,9 +470,13 @@ void StoneRuns(const PixelRun* runs, int count, float sx, float sy, float* __res
       const float w = std::min(std::max((q - 0.4f) * (1.0f / 0.6f), 0.0f), 1.0f);
       const float val = (bright * (1.0f + amp * g) + lu * u + lv * v) *
                         (1.0f - coat * w * w * (3.0f - 2.0f * w));
+      // A dome: full height at the centre, falling steeply at the rim.
+      const float t = std::max(1.0f - q, 0.0f);
+      const float h = top * t * (2.0f - t);
       const bool take = (q < 1.0f) & (dep_k > d[k]);
       d[k] = take ? dep_k : d[k];
       out[k] = take ? val : out[k];
+      ht[k] = take ? h : ht[k];
     }
   }
 }
@@ -478,6 +488,7 @@ void DrawStones(Canvas& cv, uint64_t seed, double cell, double prob, double rmin
   const double reach = rmax * 1.6;
   float* const dep = cv.depth.data();
   float* const val = cv.value;
+  float* const hgt = cv.height.data();
   const float* const grain = cv.grain;
   const double exp_prob = std::exp(-prob);
   std::vector<PixelRun> runs;
@@ -510,6 +521,10 @@ void DrawStones(Canvas& cv, uint64_t seed, double cell, double prob, double rmin
       st.light_u = static_cast<float>(rng.Uniform(-1, 1) * 0.08);
       st.light_v = static_cast<float>(rng.Uniform(-1, 1) * 0.08);
       st.depth = static_cast<float>(rng.Uniform());
+      // Exposed aggregate stands proud of the binder by a fraction of its size. The fraction
+      // comes from the digits of the depth draw rather than a new draw, so that adding relief
+      // left every later random draw, and so the texture, unchanged.
+      st.height = static_cast<float>(a * (0.1 + 0.25 * std::fmod(st.depth * 997.0, 1.0)));
       // q < 1 needs (u^2 + v^2) < (1 + rough) / (1 - |e|): bound the search radius by that.
       const double e = std::abs(st.egg_u) + std::abs(st.egg_v);
       const double bound = a * std::sqrt((1.0 + st.rough) / std::max(0.2, 1.0 - e));
@@ -522,7 +537,8 @@ void DrawStones(Canvas& cv, uint64_t seed, double cell, double prob, double rmin
                         step_y = sy;
                       });
       if (!runs.empty()) {
-        StoneRuns(runs.data(), static_cast<int>(runs.size()), step_x, step_y, dep, val, grain, st);
+        StoneRuns(runs.data(), static_cast<int>(runs.size()), step_x, step_y, dep, val, hgt, grain,
+                  st);
       }
     }
   });
@@ -547,6 +563,7 @@ void DrawPores(Canvas& cv, uint64_t seed, double cell, double prob, double rmin,
           const float shade = static_cast<float>(1.0 + (sx * dx + sy * dy) / b.r);
           cv.value[idx] = inner * shade;
           cv.depth[idx] = 2.0f;  // pores are holes: nothing lies on top
+          cv.height[idx] = -0.3f * static_cast<float>(b.r);
         } else if (t < 1.35) {
           cv.value[idx] *= 0.7f + 0.3f * SmoothStep(1.0f, 1.35f, static_cast<float>(t));
         }
@@ -685,6 +702,7 @@ void DrawWearFine(Canvas& cv, uint64_t seed, const FloorState& st) {
                     if (b.Normalized(dx, dy) < 1.0) {
                       cv.value[idx] = v;
                       cv.depth[idx] = 3.0f;
+                      cv.height[idx] = 1.5f * static_cast<float>(b.r);  // lies on the surface
                     }
                   });
                 }
@@ -713,6 +731,7 @@ void RenderAsphalt(Canvas& cv, uint64_t seed, Phase phase) {
   for (size_t idx = 0; idx < n; ++idx) {
     cv.grain[idx] = 0.6f * f[idx] + 0.4f * m[idx];
     cv.value[idx] = 0.2f + 0.05f * m[idx] + 0.07f * f[idx];
+    cv.height[idx] = 0.04f * cv.grain[idx];  // a slightly rough binder
   }
 }
 
@@ -833,7 +852,35 @@ void DrawMarkers(Canvas& cv, const std::vector<FloorMarker>& markers) {
     const double r = mk.radius * 1000.0;
     ForEachPixelNear(cv.region, mk.x * 1000.0, mk.y * 1000.0, 2.0 * r, [&](float dx, float dy, size_t idx) {
       cv.value[idx] = dx * dx + dy * dy < r * r ? 1.0f : 0.0f;
+      cv.height[idx] = 0.0f;  // a flat printed disk
     });
+  }
+}
+
+// Lambertian shading of the height field by a directional light given in the image frame,
+// mixed with ambient light: a flat patch keeps its reflectance, a slope facing the light
+// brightens and one facing away darkens (no cast shadows).
+void ShadeRelief(const View& v, const float* height, const FloorState& st, float* value) {
+  double x0, y0, x1, y1;
+  v.FloorAt(0, 0, &x0, &y0);
+  v.FloorAt(1, 0, &x1, &y1);
+  const float inv2px = static_cast<float>(0.5 / std::hypot(x1 - x0, y1 - y0));  // 1 / (2 px mm)
+  const double ce = std::cos(st.light_elevation);
+  const float lu = static_cast<float>(ce * std::cos(st.light_azimuth));
+  const float lv = static_cast<float>(ce * std::sin(st.light_azimuth));
+  const float lz = static_cast<float>(std::sin(st.light_elevation));
+  const float d = static_cast<float>(st.directional), ambient = 1.0f - d, dz = d / lz;
+  for (int j = 0; j < v.h; ++j) {
+    const float* up = height + static_cast<size_t>(std::max(j - 1, 0)) * v.w;
+    const float* row = height + static_cast<size_t>(j) * v.w;
+    const float* down = height + static_cast<size_t>(std::min(j + 1, v.h - 1)) * v.w;
+    float* out = value + static_cast<size_t>(j) * v.w;
+    for (int i = 0; i < v.w; ++i) {
+      const float hu = (row[std::min(i + 1, v.w - 1)] - row[std::max(i - 1, 0)]) * inv2px;
+      const float hv = (down[i] - up[i]) * inv2px;
+      const float ndotl = (lz - hu * lu - hv * lv) / std::sqrt(1.0f + hu * hu + hv * hv);
+      out[i] *= ambient + dz * std::max(ndotl, 0.0f);
+    }
   }
 }
 
@@ -872,6 +919,12 @@ void Floor::Render(const Homography& floor_from_image, int width, int height, in
     throw std::invalid_argument("Floor::Render: supersample must be in 1..8");
   }
   if (!(state.day >= 0.0)) throw std::invalid_argument("Floor::Render: day must be >= 0");
+  if (!(state.directional >= 0.0 && state.directional <= 1.0)) {
+    throw std::invalid_argument("Floor::Render: directional must be in [0, 1]");
+  }
+  if (!(state.light_elevation > 0.0 && state.light_elevation <= M_PI / 2)) {
+    throw std::invalid_argument("Floor::Render: light_elevation must be in (0, pi/2]");
+  }
   // Fine (supersampled) pixel (i, j) has image coordinates u = (i + 0.5) / s - 0.5.
   const double s = supersample;
   const double a[9] = {1.0 / s, 0, 0.5 / s - 0.5, 0, 1.0 / s, 0.5 / s - 0.5, 0, 0, 1};
@@ -933,6 +986,8 @@ void Floor::Render(const Homography& floor_from_image, int width, int height, in
         }
       }
     }
+    const bool relief = surface_ == Surface::kAsphalt || surface_ == Surface::kConcrete;
+    if (relief && state.directional > 0.0) ShadeRelief(fine, canvas.height.data(), state, fine_img.ptr<float>());
   }
   if (supersample > 1) {
     cv::resize(fine_img, *out, cv::Size(width, height), 0, 0, cv::INTER_AREA);

@@ -245,6 +245,10 @@ Lighting VisitLighting(uint64_t seed, uint64_t visit) {
   l.gain = 1.0 + 0.1 * rng.Uniform(-1.0, 1.0);
   l.gradient_u = 0.12 * rng.Uniform(-1.0, 1.0);
   l.gradient_v = 0.12 * rng.Uniform(-1.0, 1.0);
+  // Drawn after the fields above so that those keep their values.
+  l.gamma = 1.0 + 0.15 * rng.Uniform(-1.0, 1.0);
+  l.directional_scale = 1.0 + 0.25 * rng.Uniform(-1.0, 1.0);
+  l.azimuth_offset = 0.25 * rng.Uniform(-1.0, 1.0);
   return l;
 }
 
@@ -318,7 +322,12 @@ SynthSummary GenerateDataset(const SynthOptions& o, const fs::path& out, bool fo
          << "\noverlap: " << o.overlap << "\ntrain_images: " << o.train_images
          << "\nqueries_per_split: " << o.queries_per_split << "\naging: " << o.aging
          << "\nsupersample: " << o.camera.supersample
-         << "\nsensor_effects: " << (o.camera.sensor_effects ? "true" : "false") << "\n";
+         << "\nsensor_effects: " << (o.camera.sensor_effects ? "true" : "false")
+         << "\nrenderer_version: " << kRendererVersion
+         << "\nmotion_blur: " << o.camera.motion_blur
+         << "\nlight_directional: " << o.camera.light_directional
+         << "\nlight_azimuth: " << o.camera.light_azimuth
+         << "\nlight_elevation: " << o.camera.light_elevation << "\n";
     WriteFileAtomic(staging / "synth.yaml", prov.str());
     for (const auto& entry : fs::recursive_directory_iterator(staging)) {
       if (entry.is_regular_file()) summary.bytes += entry.file_size();

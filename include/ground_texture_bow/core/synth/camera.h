@@ -1,6 +1,7 @@
 // An orthographic, downward-facing camera at constant height over a procedural Floor, with the
 // imperfections of a real one: sensor noise, slight defocus, vignetting, exposure changes, and
-// small height and tilt jitter that changes the scale by up to about +-2%.
+// small height and tilt jitter that changes the scale by up to about +-2%, motion blur along
+// the driving direction, and a light mounted on the camera that shades the floor's relief.
 #pragma once
 
 #include <cstdint>
@@ -27,6 +28,12 @@ struct CameraOptions {
   double scale_jitter = 0.007;      // standard deviation of the height-jitter scale change
   double tilt_jitter = 0.004;       // standard deviation of the tilt scale change at the edge
   double max_scale_change = 0.02;   // clamp on every scale change, fraction
+  double motion_blur = 1.5;         // longest motion blur along the image u axis, pixels
+  // The light mounted on the camera: it turns with the robot, so relief is shaded differently
+  // when a place is seen at another heading (FloorState).
+  double light_directional = 0.5;   // share of directional light, rest ambient [0, 1]
+  double light_azimuth = 0.0;       // where the light comes from, radians from image +u
+  double light_elevation = 0.7;     // radians above the floor (0, pi/2]
 
   // Throws std::invalid_argument naming the first bad field.
   void Check() const;
@@ -38,6 +45,10 @@ struct Lighting {
   double gain = 1.0;        // overall brightness factor
   double gradient_u = 0.0;  // brightness change across the image width, fraction
   double gradient_v = 0.0;  // brightness change across the image height, fraction
+  double gamma = 1.0;       // tone curve of this session's exposure settings (> 0)
+  double directional_scale = 1.0;  // directional light relative to CameraOptions (ambient
+                                   // light leaking in changes the mix), >= 0
+  double azimuth_offset = 0.0;     // light azimuth relative to CameraOptions, radians
 };
 
 class Camera {

@@ -2,6 +2,7 @@
 // seed: any region renders on demand and nothing is stored. Structure exists at several scales
 // (e.g. asphalt: aggregate stones of many sizes in a darker binder, plus fine speckle), and
 // ageing (dirt, stains, scuffs, tyre marks, debris) accumulates progressively with the day.
+// Surfaces with relief (asphalt, concrete) can be shaded by a light fixed to the camera.
 #pragma once
 
 #include <array>
@@ -40,6 +41,15 @@ struct FloorState {
   uint64_t visit_seed = 0;   // randomness of this visit: transient debris
   double aging = 1.0;        // multiplier on the rate of ageing (0 disables wear)
   std::vector<FloorMarker> markers;
+  // Relief shading. The floor has a height field (stones stand proud of the binder, pores and
+  // pits sink into it, debris lies on top). A directional light shades it Lambertian-style:
+  // slopes facing the light brighten, slopes facing away darken. The light is given in the
+  // IMAGE frame (a light mounted on the camera turns with the robot), so the same stone looks
+  // different when seen at another heading. `directional` is the share of directional light
+  // (the rest is ambient); 0 renders plain reflectance.
+  double directional = 0.0;      // [0, 1]
+  double light_azimuth = 0.0;    // direction the light comes from, radians from image +u
+  double light_elevation = 0.7;  // radians above the floor, (0, pi/2]
 };
 
 class Floor {

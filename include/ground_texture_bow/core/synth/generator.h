@@ -16,6 +16,11 @@
 namespace gtbow {
 namespace synth {
 
+// Changes whenever the same options and seed render different images (recorded in synth.yaml,
+// so that `make benchmark` can tell a stale rendering). 2: relief shading by a camera-mounted
+// light, motion blur, per-visit tone curve.
+constexpr int kRendererVersion = 2;
+
 struct SynthOptions {
   Surface surface = Surface::kAsphalt;  // floor material
   uint64_t seed = 1;                     // same options and seed give byte-identical output
