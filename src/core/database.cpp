@@ -243,6 +243,15 @@ std::vector<QueryResult> BowDatabase::Query(const BowVector& q, size_t top_n,
 }
 
 void BowDatabase::Save(const std::filesystem::path& path) const {
+  WriteFramedFile(path, kDatabaseMagic, kDatabaseVersion, Serialize());
+}
+
+void BowDatabase::Load(const std::filesystem::path& path) {
+  const FramedPayload payload = ReadFramedFile(path, kDatabaseMagic, kDatabaseVersion, "database");
+  Deserialize(payload.data(), payload.size(), path.string());
+}
+
+std::string BowDatabase::Serialize() const {
   std::shared_lock<std::shared_mutex> lock(mutex_);
   BinaryWriter w;
   w.Put<uint32_t>(num_rows_);
@@ -273,12 +282,11 @@ void BowDatabase::Save(const std::filesystem::path& path) const {
     const auto& e = rows_[i].entries;
     w.buffer().append(reinterpret_cast<const char*>(e.data()), e.size() * sizeof(Entry));
   }
-  WriteFramedFile(path, kDatabaseMagic, kDatabaseVersion, w.buffer());
+  return std::move(w.buffer());
 }
 
-void BowDatabase::Load(const std::filesystem::path& path) {
-  const FramedPayload payload = ReadFramedFile(path, kDatabaseMagic, kDatabaseVersion, "database");
-  BinaryReader r(payload.data(), payload.size(), path.string());
+void BowDatabase::Deserialize(const char* data, size_t size, const std::string& source) {
+  BinaryReader r(data, size, source);
   const uint32_t rows = r.Get<uint32_t>();
   const uint64_t fp = r.Get<uint64_t>();
   if (fp != fingerprint_) r.Fail("database was built with a different vocabulary");
@@ -312,7 +320,7 @@ void BowDatabase::Load(const std::filesystem::path& path) {
     sum += count[n];
   }
   if (sum != total || total * sizeof(Entry) != r.remaining()) r.Fail("entry count does not match the rows");
-  const auto* src = reinterpret_cast<const char*>(payload.data()) + (payload.size() - r.remaining());
+  const char* src = data + (size - r.remaining());
   const uint32_t n_images = static_cast<uint32_t>(removed.size());
   std::vector<Row> new_rows(num_rows_);
   for (size_t n = 0; n < index.size(); ++n) {

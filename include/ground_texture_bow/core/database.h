@@ -20,6 +20,7 @@
 #include <filesystem>
 #include <memory>
 #include <shared_mutex>
+#include <string>
 #include <vector>
 
 #include "ground_texture_bow/core/bow.h"
@@ -74,6 +75,10 @@ class BowDatabase {
   // is damaged, of another version, or made with another vocabulary or other options; the
   // current contents are kept then.
   void Load(const std::filesystem::path& path);
+  // The payload of Save (no framing), for files that embed an index (the ROS map file), and
+  // its inverse; Deserialize has Load's checks and guarantees, naming `source` in errors.
+  std::string Serialize() const;
+  void Deserialize(const char* data, size_t size, const std::string& source);
 
  private:
   struct Row;

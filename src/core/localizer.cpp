@@ -1,0 +1,335 @@
+#include "ground_texture_bow/core/localizer.h"
+
+#include <cmath>
+#include <cstring>
+#include <mutex>
+#include <stdexcept>
+
+#include "ground_texture_bow/core/binary_io.h"
+
+namespace gtbow {
+
+namespace {
+
+constexpr char kMapMagic[8] = {'G', 'T', 'B', 'W', 'M', 'A', 'P', '\0'};
+constexpr uint32_t kMapVersion = 1;
+constexpr uint64_t kMaxKeypoints = 1u << 16;  // per keyframe (keypoint ids are 16-bit)
+
+void PutKeypoints(BinaryWriter* w, const std::vector<Keypoint>& k) { w->PutVector(k); }
+
+}  // namespace
+
+void LocalizerOptions::Check() const {
+  retrieval.Check();
+  localization.Check();
+  if (!(meters_per_pixel > 0.0) || !std::isfinite(meters_per_pixel)) {
+    throw std::invalid_argument("meters_per_pixel must be positive and finite");
+  }
+}
+
+Localizer::Localizer(std::shared_ptr<Vocabulary> vocabulary, std::string vocabulary_path,
+                     const LocalizerOptions& options)
+    : vocabulary_(std::move(vocabulary)),
+      vocabulary_path_(std::move(vocabulary_path)),
+      options_(options) {
+  if (!vocabulary_) throw std::invalid_argument("Localizer: no vocabulary");
+  options_.Check();
+  const VocabularyOptions& vo = options_.retrieval.vocabulary;
+  if (vo.kind != vocabulary_->kind() || vo.metric != vocabulary_->metric()) {
+    throw std::invalid_argument("the preset asks for a " + VocabularyKindName(vo.kind) + "/" +
+                                MetricName(vo.metric) + " vocabulary, " + vocabulary_path_ +
+                                " is " + VocabularyKindName(vocabulary_->kind()) + "/" +
+                                MetricName(vocabulary_->metric()));
+  }
+  vocabulary_->set_search(vo.ann, vo.nprobe);
+  vocabulary_->set_checks(vo.checks);
+  encoder_ = std::make_unique<BowEncoder>(*vocabulary_, options_.retrieval.bow);
+  database_ = std::make_unique<BowDatabase>(encoder_->num_rows(), options_.retrieval.bow,
+                                            vocabulary_->fingerprint());
+}
+
+ImageGeometry Localizer::GeometryOf(int width, int height) const {
+  return {width, height, options_.meters_per_pixel};
+}
+
+ProcessedImage Localizer::Process(const cv::Mat& gray) const {
+  if (gray.empty()) throw std::invalid_argument("empty image");
+  if (gray.type() != CV_8UC1) {
+    throw std::invalid_argument("expected an 8-bit single-channel image");
+  }
+  ProcessedImage p;
+  // One extractor per call: OpenCV's detectors are not documented as safe to share.
+  const FeatureExtractor extractor(options_.retrieval.features);
+  p.features = extractor.Extract(gray);
+  p.bow = encoder_->Encode(p.features);
+  p.width = gray.cols;
+  p.height = gray.rows;
+  return p;
+}
+
+uint32_t Localizer::Add(const ProcessedImage& image, int64_t stamp_ns,
+                        const std::optional<Pose2D>& pose) {
+  if (pose && !(std::isfinite(pose->x) && std::isfinite(pose->y) && std::isfinite(pose->theta))) {
+    throw std::invalid_argument("keyframe pose has a non-finite value");
+  }
+  if (image.features.size() > kMaxKeypoints) {
+    throw std::invalid_argument("more than 65536 keypoints in one image");
+  }
+  std::unique_lock<std::shared_mutex> lock(mutex_);
+  const uint32_t id = database_->Add(image.bow);
+  Keyframe k;
+  k.id = id;
+  k.stamp_ns = stamp_ns;
+  k.has_pose = pose.has_value();
+  if (pose) k.map_from_camera = *pose;
+  k.width = image.width;
+  k.height = image.height;
+  k.keypoints = image.features.keypoints;
+  k.descriptors = image.features.descriptors.clone();
+  if (keyframes_.size() != id) {
+    throw std::logic_error("keyframe ids out of step with the database");
+  }
+  keyframes_.push_back(std::move(k));
+  return id;
+}
+
+std::vector<Candidate> Localizer::QueryLocked(const BowVector& bow,
+                                              const std::vector<Keypoint>& keypoints, int width,
+                                              int height, size_t k, bool verify,
+                                              uint32_t exclude_from, uint32_t exclude_to) const {
+  std::vector<Candidate> out;
+  if (bow.source.empty() || k == 0) return out;
+  const size_t excluded = exclude_to > exclude_from ? exclude_to - exclude_from : 0;
+  const auto results = database_->Query(bow, k + excluded, verify);
+  for (const QueryResult& r : results) {
+    if (r.image >= exclude_from && r.image < exclude_to) continue;
+    const Keyframe& kf = keyframes_.at(r.image);
+    Candidate c;
+    c.id = r.image;
+    c.score = r.score;
+    c.stamp_ns = kf.stamp_ns;
+    c.has_pose = kf.has_pose;
+    c.map_from_camera = kf.map_from_camera;
+    if (verify) {
+      if (kf.width != width || kf.height != height) {
+        c.relative.reason = "the images differ in size";
+      } else {
+        c.relative = EstimatePose(MatchesOf(r, keypoints, kf.keypoints), Pose2D{},
+                                  GeometryOf(width, height), options_.localization.pose);
+        c.verified = c.relative.success;
+      }
+    }
+    out.push_back(std::move(c));
+    if (out.size() == k) break;
+  }
+  return out;
+}
+
+std::vector<Candidate> Localizer::Query(const ProcessedImage& image, size_t k, bool verify,
+                                        uint32_t exclude_from, uint32_t exclude_to) const {
+  std::shared_lock<std::shared_mutex> lock(mutex_);
+  return QueryLocked(image.bow, image.features.keypoints, image.width, image.height, k, verify,
+                     exclude_from, exclude_to);
+}
+
+std::vector<Candidate> Localizer::QueryKeyframe(uint32_t id, size_t k, bool verify) const {
+  Keyframe kf;
+  {
+    std::shared_lock<std::shared_mutex> lock(mutex_);
+    if (id >= keyframes_.size()) {
+      throw std::out_of_range("no keyframe " + std::to_string(id) + " (the map has " +
+                              std::to_string(keyframes_.size()) + ")");
+    }
+    kf.keypoints = keyframes_[id].keypoints;
+    kf.descriptors = keyframes_[id].descriptors;
+    kf.width = keyframes_[id].width;
+    kf.height = keyframes_[id].height;
+  }
+  ImageFeatures f;
+  f.keypoints = std::move(kf.keypoints);
+  f.descriptors = kf.descriptors;
+  const BowVector bow = encoder_->Encode(f);  // outside the lock: the heavy part
+  std::shared_lock<std::shared_mutex> lock(mutex_);
+  return QueryLocked(bow, f.keypoints, kf.width, kf.height, k, verify, id, id + 1);
+}
+
+PoseFix Localizer::Localize(const ProcessedImage& image) const {
+  PoseFix fix;
+  if (image.bow.source.empty()) {
+    fix.reason = "the image has no features";
+    return fix;
+  }
+  std::shared_lock<std::shared_mutex> lock(mutex_);
+  if (keyframes_.empty()) {
+    fix.reason = "the map is empty";
+    return fix;
+  }
+  const auto results =
+      database_->Query(image.bow, static_cast<size_t>(options_.localization.candidates), true);
+  if (results.empty()) {
+    fix.reason = "no keyframe shares a word with the image";
+    return fix;
+  }
+  std::string reasons;
+  for (const QueryResult& r : results) {
+    const Keyframe& kf = keyframes_.at(r.image);
+    std::string why;
+    if (!kf.has_pose) {
+      why = "no pose";
+    } else if (kf.width != image.width || kf.height != image.height) {
+      why = "other image size";
+    } else {
+      PoseEstimate est = EstimatePose(MatchesOf(r, image.features.keypoints, kf.keypoints),
+                                      kf.map_from_camera, GeometryOf(image.width, image.height),
+                                      options_.localization.pose);
+      if (est.success) {
+        fix.success = true;
+        fix.map_from_camera = est.floor_from_query;
+        fix.covariance = est.covariance;
+        fix.keyframe = r.image;
+        fix.inliers = est.inliers;
+        fix.score = r.score;
+        return fix;
+      }
+      why = est.reason;
+    }
+    if (reasons.size() < 300) {
+      reasons += (reasons.empty() ? "" : "; ") + ("keyframe " + std::to_string(r.image) + ": " + why);
+    }
+  }
+  fix.reason = "none of " + std::to_string(results.size()) + " candidates verified (" + reasons + ")";
+  return fix;
+}
+
+void Localizer::Save(const std::filesystem::path& path) const {
+  BinaryWriter w;
+  {
+    std::shared_lock<std::shared_mutex> lock(mutex_);
+    w.PutString(vocabulary_path_);
+    w.Put<uint64_t>(vocabulary_->fingerprint());
+    w.PutString(FormatRetrievalConfig(options_.retrieval));
+    w.Put<double>(options_.meters_per_pixel);
+    w.PutString(database_->Serialize());
+    w.Put<uint64_t>(keyframes_.size());
+    for (const Keyframe& k : keyframes_) {
+      w.Put<int64_t>(k.stamp_ns);
+      w.Put<uint8_t>(k.has_pose ? 1 : 0);
+      w.Put<double>(k.map_from_camera.x);
+      w.Put<double>(k.map_from_camera.y);
+      w.Put<double>(k.map_from_camera.theta);
+      w.Put<int32_t>(k.width);
+      w.Put<int32_t>(k.height);
+      PutKeypoints(&w, k.keypoints);
+      const cv::Mat d = k.descriptors.isContinuous() ? k.descriptors : k.descriptors.clone();
+      w.Put<int32_t>(d.rows);
+      w.Put<int32_t>(d.cols);
+      w.Put<int32_t>(d.type());
+      w.PutArray(d.data, d.empty() ? 0 : d.total() * d.elemSize());
+    }
+  }
+  WriteFramedFile(path, kMapMagic, kMapVersion, w.buffer());
+}
+
+std::string Localizer::VocabularyPathOf(const std::filesystem::path& path) {
+  const FramedPayload payload = ReadFramedFile(path, kMapMagic, kMapVersion, "map");
+  BinaryReader r(payload.data(), payload.size(), path.string());
+  return r.GetString(1u << 16);
+}
+
+void Localizer::Load(const std::filesystem::path& path) {
+  const FramedPayload payload = ReadFramedFile(path, kMapMagic, kMapVersion, "map");
+  const std::string source = path.string();
+  BinaryReader r(payload.data(), payload.size(), source);
+  r.GetString(1u << 16);  // vocabulary path: informative (VocabularyPathOf)
+  if (r.Get<uint64_t>() != vocabulary_->fingerprint()) {
+    r.Fail("the map was built with another vocabulary than " + vocabulary_path_);
+  }
+  const std::string config = r.GetString(1u << 20);
+  if (config != FormatRetrievalConfig(options_.retrieval)) {
+    // Only the BoW options shape the stored index (the database checks them); feature
+    // options change what new images look like. Both must match for answers to be consistent.
+    r.Fail("the map was built with other retrieval options (a different preset)");
+  }
+  const double mpp = r.Get<double>();
+  if (mpp != options_.meters_per_pixel) {
+    r.Fail("the map was built with meters_per_pixel " + std::to_string(mpp) + ", this node uses " +
+           std::to_string(options_.meters_per_pixel));
+  }
+  const std::string db_blob = r.GetString(payload.size());
+  auto db = std::make_unique<BowDatabase>(encoder_->num_rows(), options_.retrieval.bow,
+                                          vocabulary_->fingerprint());
+  db->Deserialize(db_blob.data(), db_blob.size(), source + " (database)");
+  const uint64_t n = r.Get<uint64_t>();
+  if (n != db->next_id()) r.Fail("keyframe count does not match the database");
+  std::vector<Keyframe> keyframes;
+  keyframes.reserve(n);
+  for (uint64_t i = 0; i < n; ++i) {
+    Keyframe k;
+    k.id = static_cast<uint32_t>(i);
+    k.stamp_ns = r.Get<int64_t>();
+    k.has_pose = r.Get<uint8_t>() != 0;
+    k.map_from_camera.x = r.Get<double>();
+    k.map_from_camera.y = r.Get<double>();
+    k.map_from_camera.theta = r.Get<double>();
+    k.width = r.Get<int32_t>();
+    k.height = r.Get<int32_t>();
+    k.keypoints = r.GetVector<Keypoint>(kMaxKeypoints);
+    const int rows = r.Get<int32_t>(), cols = r.Get<int32_t>(), type = r.Get<int32_t>();
+    const auto bytes = r.GetVector<uint8_t>(kMaxKeypoints * 512);
+    if (rows < 0 || cols < 0 || static_cast<size_t>(rows) != k.keypoints.size() ||
+        (type != CV_8U && type != CV_32F) ||
+        bytes.size() != static_cast<size_t>(rows) * cols * (type == CV_8U ? 1 : 4) ||
+        k.width <= 0 || k.height <= 0) {
+      r.Fail("keyframe " + std::to_string(i) + " is malformed");
+    }
+    if (rows > 0) {
+      k.descriptors.create(rows, cols, type);
+      std::memcpy(k.descriptors.data, bytes.data(), bytes.size());
+    }
+    keyframes.push_back(std::move(k));
+  }
+  if (r.remaining() != 0) r.Fail("trailing bytes after the keyframes");
+  std::unique_lock<std::shared_mutex> lock(mutex_);
+  database_ = std::move(db);
+  keyframes_ = std::move(keyframes);
+}
+
+void Localizer::Reset() {
+  auto db = std::make_unique<BowDatabase>(encoder_->num_rows(), options_.retrieval.bow,
+                                          vocabulary_->fingerprint());
+  std::unique_lock<std::shared_mutex> lock(mutex_);
+  database_ = std::move(db);
+  keyframes_.clear();
+}
+
+size_t Localizer::size() const {
+  std::shared_lock<std::shared_mutex> lock(mutex_);
+  return keyframes_.size();
+}
+
+std::optional<Keyframe> Localizer::KeyframeInfo(uint32_t id) const {
+  std::shared_lock<std::shared_mutex> lock(mutex_);
+  if (id >= keyframes_.size()) return std::nullopt;
+  Keyframe k = keyframes_[id];
+  k.descriptors = cv::Mat();
+  return k;
+}
+
+std::vector<Keyframe> Localizer::Keyframes() const {
+  std::shared_lock<std::shared_mutex> lock(mutex_);
+  std::vector<Keyframe> out;
+  out.reserve(keyframes_.size());
+  for (const Keyframe& k : keyframes_) {
+    Keyframe c;
+    c.id = k.id;
+    c.stamp_ns = k.stamp_ns;
+    c.has_pose = k.has_pose;
+    c.map_from_camera = k.map_from_camera;
+    c.width = k.width;
+    c.height = k.height;
+    out.push_back(std::move(c));
+  }
+  return out;
+}
+
+}  // namespace gtbow

@@ -1,0 +1,262 @@
+// The online map behind the ROS node, on a small synthetic floor whose ground truth is known:
+// keyframes in, loop-closure candidates with relative poses and global fixes out, and a map
+// file that survives a round trip and refuses damage.
+#include "ground_texture_bow/core/localizer.h"
+
+#include <cmath>
+#include <fstream>
+
+#include <gtest/gtest.h>
+
+#include "ground_texture_bow/core/file_util.h"
+#include "ground_texture_bow/core/synth/generator.h"
+#include "test_util.h"
+
+namespace gtbow {
+namespace {
+
+struct Scene {
+  synth::SynthOptions so;
+  std::shared_ptr<Vocabulary> vocabulary;
+  std::vector<cv::Mat> db_images;
+  std::vector<Pose2D> db_poses;
+  std::vector<cv::Mat> revisits;  // every third database place, 30 days later, a bit off
+  std::vector<Pose2D> revisit_poses;
+};
+
+const Scene& TheScene() {
+  static const Scene scene = [] {
+    Scene s;
+    s.so.area_width = 0.4;
+    s.so.area_height = 0.3;
+    s.so.train_images = 30;
+    s.so.queries_per_split = 0;
+    const synth::DatasetPlan plan = synth::PlanDataset(s.so);
+    const synth::Floor floor(s.so.surface, s.so.seed);
+    const synth::Camera camera(s.so.camera);
+    RetrievalConfig cfg;
+    cfg.vocabulary.num_words = 2000;
+    const FeatureExtractor fx(cfg.features);
+    std::vector<cv::Mat> train;
+    std::vector<uint32_t> image_of;
+    for (const auto& im : plan.images) {
+      cv::Mat img = synth::RenderPlannedImage(floor, camera, s.so, im);
+      if (im.split == "train") {
+        const ImageFeatures f = fx.Extract(img);
+        train.push_back(f.descriptors);
+        image_of.insert(image_of.end(), f.size(), static_cast<uint32_t>(train.size()));
+      } else {
+        s.db_images.push_back(img);
+        s.db_poses.push_back(im.pose);
+      }
+    }
+    for (size_t d = 0; d < s.db_poses.size(); d += 3) {
+      synth::PlannedImage im;
+      im.name = "revisit_" + std::to_string(d);
+      im.pose = {s.db_poses[d].x + 0.004, s.db_poses[d].y - 0.003, s.db_poses[d].theta + 0.05};
+      im.day = 30;
+      im.visit = 100;
+      s.revisits.push_back(synth::RenderPlannedImage(floor, camera, s.so, im));
+      s.revisit_poses.push_back(im.pose);
+    }
+    cv::Mat desc;
+    cv::vconcat(train, desc);
+    s.vocabulary = TrainVocabulary(cfg.vocabulary, desc, image_of, false);
+    return s;
+  }();
+  return scene;
+}
+
+LocalizerOptions Options() {
+  LocalizerOptions o;
+  o.retrieval.vocabulary.num_words = 2000;
+  o.meters_per_pixel = TheScene().so.camera.meters_per_pixel;
+  return o;
+}
+
+// A localizer holding every database image as a keyframe (with its pose when `posed`).
+std::unique_ptr<Localizer> Mapped(bool posed) {
+  const Scene& s = TheScene();
+  auto loc = std::make_unique<Localizer>(s.vocabulary, "test.gtvoc", Options());
+  for (size_t i = 0; i < s.db_images.size(); ++i) {
+    const uint32_t id = loc->Add(loc->Process(s.db_images[i]), 1000 + static_cast<int64_t>(i),
+                                 posed ? std::optional<Pose2D>(s.db_poses[i]) : std::nullopt);
+    EXPECT_EQ(id, i);
+  }
+  return loc;
+}
+
+// match_from_query from two ground-truth poses.
+Pose2D Relative(const Pose2D& match, const Pose2D& query) {
+  const double c = std::cos(match.theta), s = std::sin(match.theta);
+  const double dx = query.x - match.x, dy = query.y - match.y;
+  return {c * dx + s * dy, -s * dx + c * dy, std::remainder(query.theta - match.theta, 2 * M_PI)};
+}
+
+TEST(Localizer, GlobalFixesOfRevisitsAreWithinTheProtocolsTolerance) {
+  const Scene& s = TheScene();
+  const auto loc = Mapped(true);
+  ASSERT_EQ(loc->size(), s.db_images.size());
+  for (size_t q = 0; q < s.revisits.size(); ++q) {
+    const PoseFix fix = loc->Localize(loc->Process(s.revisits[q]));
+    ASSERT_TRUE(fix.success) << fix.reason;
+    const Pose2D& t = s.revisit_poses[q];
+    EXPECT_LT(1000 * std::hypot(fix.map_from_camera.x - t.x, fix.map_from_camera.y - t.y), 4.8);
+    EXPECT_LT(std::abs(std::remainder(fix.map_from_camera.theta - t.theta, 2 * M_PI)) * 180 / M_PI,
+              1.5);
+    EXPECT_GT(fix.covariance[0], 0.0);
+    EXPECT_GE(fix.inliers, 6);
+  }
+}
+
+TEST(Localizer, CandidatesCarryVerifiedRelativePosesAndNoFixWithoutPoses) {
+  const Scene& s = TheScene();
+  const auto loc = Mapped(false);  // a SLAM backend's keyframes: no poses
+  for (size_t q = 0; q < s.revisits.size(); ++q) {
+    const ProcessedImage img = loc->Process(s.revisits[q]);
+    const auto cands = loc->Query(img, 3, true);
+    ASSERT_FALSE(cands.empty());
+    const Candidate& best = cands[0];
+    EXPECT_EQ(best.stamp_ns, 1000 + static_cast<int64_t>(best.id));
+    EXPECT_FALSE(best.has_pose);
+    ASSERT_TRUE(best.verified) << best.relative.reason;
+    const Pose2D truth = Relative(s.db_poses[best.id], s.revisit_poses[q]);
+    const Pose2D& est = best.relative.floor_from_query;
+    EXPECT_LT(1000 * std::hypot(est.x - truth.x, est.y - truth.y), 4.8);
+    EXPECT_LT(std::abs(std::remainder(est.theta - truth.theta, 2 * M_PI)), 1.5 * M_PI / 180);
+    // Without poses there is nothing to localize against.
+    const PoseFix fix = loc->Localize(img);
+    EXPECT_FALSE(fix.success);
+    EXPECT_NE(fix.reason.find("no pose"), std::string::npos) << fix.reason;
+  }
+  // Unverified queries give no relative pose.
+  const auto plain = loc->Query(loc->Process(s.revisits[0]), 3, false);
+  ASSERT_FALSE(plain.empty());
+  EXPECT_FALSE(plain[0].verified);
+}
+
+TEST(Localizer, QueryByKeyframeExcludesItselfAndFindsOverlappingNeighbours) {
+  const Scene& s = TheScene();
+  const auto loc = Mapped(true);
+  const ImageGeometry geo = s.so.camera.Geometry();
+  for (uint32_t id = 0; id < s.db_images.size(); id += 4) {
+    const auto cands = loc->QueryKeyframe(id, 5, true);
+    ASSERT_FALSE(cands.empty());
+    for (const Candidate& c : cands) EXPECT_NE(c.id, id);
+    EXPECT_GT(Overlap(s.db_poses[id], s.db_poses[cands[0].id], geo), 0.25);
+  }
+  EXPECT_THROW(loc->QueryKeyframe(100000, 5, false), std::out_of_range);
+  // Excluding a range (the query's own recent past).
+  const ProcessedImage img = loc->Process(s.db_images[5]);
+  for (const Candidate& c : loc->Query(img, 5, false, 3, 8)) {
+    EXPECT_TRUE(c.id < 3 || c.id >= 8) << c.id;
+  }
+}
+
+class LocalizerFiles : public testing_util::TempDirTest {
+ protected:
+  const std::filesystem::path& dir() const { return dir_; }
+};
+
+TEST_F(LocalizerFiles, SavedMapsLoadAndAnswerIdentically) {
+  const Scene& s = TheScene();
+  const auto loc = Mapped(true);
+  const auto path = dir() / "map.gtmap";
+  loc->Save(path);
+  EXPECT_EQ(Localizer::VocabularyPathOf(path), "test.gtvoc");
+  Localizer fresh(s.vocabulary, "test.gtvoc", Options());
+  fresh.Load(path);
+  ASSERT_EQ(fresh.size(), loc->size());
+  for (size_t q = 0; q < s.revisits.size(); ++q) {
+    const ProcessedImage img = loc->Process(s.revisits[q]);
+    const auto a = loc->Query(img, 5, true), b = fresh.Query(img, 5, true);
+    ASSERT_EQ(a.size(), b.size());
+    for (size_t k = 0; k < a.size(); ++k) {
+      EXPECT_EQ(a[k].id, b[k].id);
+      EXPECT_EQ(a[k].score, b[k].score);
+      EXPECT_EQ(a[k].relative.floor_from_query.x, b[k].relative.floor_from_query.x);
+    }
+    const PoseFix fa = loc->Localize(img), fb = fresh.Localize(img);
+    EXPECT_EQ(fa.success, fb.success);
+    EXPECT_EQ(fa.map_from_camera.x, fb.map_from_camera.x);
+    EXPECT_EQ(fa.keyframe, fb.keyframe);
+  }
+  const auto k7 = fresh.KeyframeInfo(7);
+  ASSERT_TRUE(k7.has_value());
+  EXPECT_EQ(k7->stamp_ns, 1007);
+  EXPECT_EQ(k7->map_from_camera.x, s.db_poses[7].x);
+  // Query by keyframe id works on a loaded map (descriptors were saved).
+  EXPECT_EQ(fresh.QueryKeyframe(7, 3, false)[0].id, loc->QueryKeyframe(7, 3, false)[0].id);
+}
+
+TEST_F(LocalizerFiles, DamagedOrForeignMapsAreRefusedAndTheCurrentMapKept) {
+  const Scene& s = TheScene();
+  const auto loc = Mapped(true);
+  const auto path = dir() / "map.gtmap";
+  loc->Save(path);
+  const std::string good = ReadFile(path);
+  Localizer target(s.vocabulary, "test.gtvoc", Options());
+  target.Add(target.Process(s.db_images[0]), 1, std::nullopt);
+  auto expect_refused = [&](const std::string& bytes, const std::string& what) {
+    WriteFileAtomic(dir() / "bad.gtmap", bytes);
+    try {
+      target.Load(dir() / "bad.gtmap");
+      ADD_FAILURE() << "loaded " << what;
+    } catch (const std::runtime_error& e) {
+      EXPECT_NE(std::string(e.what()).find("bad.gtmap"), std::string::npos) << e.what();
+    }
+    EXPECT_EQ(target.size(), 1u) << what;  // the current map is kept
+  };
+  std::string flipped = good;
+  flipped[flipped.size() / 2] ^= 0x40;
+  expect_refused(flipped, "a flipped byte");
+  expect_refused(good.substr(0, good.size() / 3), "a truncated file");
+  expect_refused("not a map at all", "a foreign file");
+  std::string vocab_file;
+  {
+    s.vocabulary->Save(dir() / "v.gtvoc");
+    vocab_file = ReadFile(dir() / "v.gtvoc");
+  }
+  expect_refused(vocab_file, "a vocabulary file");
+  // Another preset (other BoW options) is refused with a reason.
+  LocalizerOptions other = Options();
+  other.retrieval.bow.soft_assignment = 1;
+  Localizer fast(s.vocabulary, "test.gtvoc", other);
+  try {
+    fast.Load(path);
+    ADD_FAILURE() << "loaded a map of another preset";
+  } catch (const std::runtime_error& e) {
+    EXPECT_NE(std::string(e.what()).find("preset"), std::string::npos) << e.what();
+  }
+  // A save that cannot be written throws and leaves the existing file as it was.
+  EXPECT_THROW(loc->Save(dir() / "no_such_dir" / "map.gtmap"), std::runtime_error);
+  EXPECT_EQ(ReadFile(path), good);
+}
+
+TEST(Localizer, BadImagesAndPosesGetClearErrors) {
+  const Scene& s = TheScene();
+  Localizer loc(s.vocabulary, "test.gtvoc", Options());
+  EXPECT_THROW(loc.Process(cv::Mat()), std::invalid_argument);
+  EXPECT_THROW(loc.Process(cv::Mat(48, 64, CV_8UC3, cv::Scalar(1, 2, 3))), std::invalid_argument);
+  EXPECT_THROW(loc.Process(cv::Mat(48, 64, CV_16UC1, cv::Scalar(1))), std::invalid_argument);
+  const ProcessedImage blank = loc.Process(cv::Mat(480, 640, CV_8UC1, cv::Scalar(128)));
+  EXPECT_EQ(blank.features.size(), 0u);
+  const PoseFix fix = loc.Localize(blank);
+  EXPECT_FALSE(fix.success);
+  EXPECT_NE(fix.reason.find("no features"), std::string::npos);
+  EXPECT_TRUE(loc.Query(blank, 5, true).empty());
+  EXPECT_THROW(loc.Add(loc.Process(s.db_images[0]), 0, Pose2D{NAN, 0, 0}), std::invalid_argument);
+  EXPECT_EQ(loc.size(), 0u);
+  loc.Add(loc.Process(s.db_images[0]), 0, std::nullopt);
+  loc.Reset();
+  EXPECT_EQ(loc.size(), 0u);
+  // A preset whose vocabulary kind does not match the file.
+  LocalizerOptions hkm = Options();
+  hkm.retrieval.vocabulary.kind = VocabularyKind::kHkm;
+  hkm.retrieval.vocabulary.metric = Metric::kHamming;
+  hkm.retrieval.bow.soft_assignment = 1;
+  EXPECT_THROW(Localizer(s.vocabulary, "test.gtvoc", hkm), std::invalid_argument);
+}
+
+}  // namespace
+}  // namespace gtbow
