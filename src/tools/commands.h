@@ -11,6 +11,7 @@ void RegisterSynth(CLI::App& app);
 void RegisterTrainVocab(CLI::App& app);
 void RegisterBenchRetrieval(CLI::App& app);
 void RegisterEval(CLI::App& app);
+void RegisterImagesToBag(CLI::App& app);  // ROS: writes rosbags
 
 }  // namespace tools
 }  // namespace gtbow

@@ -20,6 +20,7 @@ int main(int argc, char** argv) {
   gtbow::tools::RegisterTrainVocab(app);
   gtbow::tools::RegisterBenchRetrieval(app);
   gtbow::tools::RegisterEval(app);
+  gtbow::tools::RegisterImagesToBag(app);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

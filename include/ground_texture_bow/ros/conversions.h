@@ -1,0 +1,73 @@
+// Conversions between ROS messages and the core's types, as free functions (each unit-tested in
+// test/ros/conversions_test.cpp), in the manner of cartographer_ros's msg_conversion.h.
+//
+// Frames. The camera frame is an optical frame (REP-103: x right = image u, y down = image v,
+// z forward = down onto the floor). Such a camera sees the floor mirrored with respect to the
+// map (z up), so images are flipped upside down before they reach the core, which then sees the
+// floor from above: pixel (u, v') maps to the map plane through a rotation. A camera's planar
+// pose ("footprint") is the floor point under the image centre and the yaw of the camera's x
+// axis in the map, metres and radians.
+#pragma once
+
+#include <array>
+#include <cstdint>
+#include <string>
+
+#include <geometry_msgs/Pose2D.h>
+#include <geometry_msgs/PoseWithCovarianceStamped.h>
+#include <geometry_msgs/Transform.h>
+#include <opencv2/core.hpp>
+#include <ros/time.h>
+#include <sensor_msgs/Image.h>
+
+#include "ground_texture_bow/Candidate.h"
+#include "ground_texture_bow/Status.h"
+#include "ground_texture_bow/core/geometry.h"
+#include "ground_texture_bow/core/localizer.h"
+
+namespace gtbow_ros {
+
+// The core's view of an image message: 8-bit grey, flipped upside down (see above). Accepts
+// mono8, mono16, bgr8, rgb8, bgra8 and rgba8 (raw or decoded from compressed transport). Throws
+// std::invalid_argument naming the problem: unsupported encoding, empty image, inconsistent
+// step or data size.
+cv::Mat ToFloorImage(const sensor_msgs::Image& msg);
+
+// The planar footprint of a downward camera from its pose in the map (e.g. a TF lookup of
+// map -> camera optical frame). Throws std::invalid_argument for non-finite values or a camera
+// whose z axis is more than `max_tilt` radians from straight down.
+gtbow::Pose2D FootprintFromTransform(const geometry_msgs::Transform& map_from_camera,
+                                     double max_tilt = 0.35);
+
+// The inverse for a camera at `height` metres above the floor: the optical frame's transform.
+geometry_msgs::Transform TransformFromFootprint(const gtbow::Pose2D& footprint, double height);
+
+// A relative pose of the core (the query in the match image's above-view frame, x along u and
+// y along -v) expressed in the match camera's optical frame: (x, -y, -theta), covariance
+// transformed alike.
+geometry_msgs::Pose2D ToOpticalPose2D(const gtbow::Pose2D& above);
+std::array<double, 9> ToOpticalCovariance(const std::array<double, 9>& above);
+
+geometry_msgs::Pose2D ToPose2DMsg(const gtbow::Pose2D& pose);
+gtbow::Pose2D FromPose2DMsg(const geometry_msgs::Pose2D& msg);  // throws for non-finite values
+
+// A planar fix as PoseWithCovarianceStamped (amcl_pose's form): z = 0, roll = pitch = 0, the
+// x, y, yaw covariance placed in the 6x6 matrix and `planar_variance` on z, roll and pitch.
+geometry_msgs::PoseWithCovarianceStamped ToPoseWithCovariance(
+    const gtbow::Pose2D& pose, const std::array<double, 9>& covariance, const ros::Time& stamp,
+    const std::string& frame_id, double planar_variance = 1e-9);
+
+// Nanoseconds since the epoch and back.
+int64_t ToNanoseconds(const ros::Time& t);
+ros::Time FromNanoseconds(int64_t ns);
+
+// A core candidate as a message (relative pose in the optical frame).
+ground_texture_bow::Candidate ToCandidateMsg(const gtbow::Candidate& candidate);
+
+// A service status.
+ground_texture_bow::Status MakeStatus(uint8_t code, const std::string& message);
+
+// Yaw (radians) of a quaternion's x axis projected on the x-y plane.
+double YawOf(double qx, double qy, double qz, double qw);
+
+}  // namespace gtbow_ros

@@ -1,0 +1,157 @@
+// The ROS face of the core Localizer, shared by the nodelet and the standalone node: it reads
+// parameters into ServerOptions, subscribes to a downward camera, builds the map online,
+// answers services, and publishes fixes, loop closures, candidates, diagnostics and markers.
+//
+// Concurrency. Images arrive on the subscriber thread and wait in a one-image slot (a newer
+// image replaces a waiting one, counted as a drop); one worker thread processes them. Services
+// run on the node's spinner threads and call the Localizer directly; it locks internally only
+// for bookkeeping and one query, so no service waits for the worker's extraction.
+//   slot_mutex_   guards pending_ (the waiting image)
+//   state_mutex_  guards last_keyframe_*, edges_, last_fix_ (shared by worker, services, timer)
+//   counters are std::atomic; mode_ is std::atomic.
+#pragma once
+
+#include <atomic>
+#include <condition_variable>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <string>
+#include <thread>
+#include <utility>
+#include <vector>
+
+#include <diagnostic_updater/diagnostic_updater.h>
+#include <image_transport/image_transport.h>
+#include <ros/ros.h>
+#include <tf2_ros/buffer.h>
+#include <tf2_ros/transform_broadcaster.h>
+#include <tf2_ros/transform_listener.h>
+
+#include "ground_texture_bow/AddKeyframe.h"
+#include "ground_texture_bow/GetInfo.h"
+#include "ground_texture_bow/LoadMap.h"
+#include "ground_texture_bow/Localize.h"
+#include "ground_texture_bow/QueryCandidates.h"
+#include "ground_texture_bow/Reset.h"
+#include "ground_texture_bow/SaveMap.h"
+#include "ground_texture_bow/SetMode.h"
+#include "ground_texture_bow/core/localizer.h"
+
+namespace gtbow_ros {
+
+enum class Mode { kMapping, kLocalization, kExternal };
+Mode ParseMode(const std::string& name);  // throws std::invalid_argument listing valid names
+std::string ModeName(Mode mode);
+
+// Every parameter of config/localizer.yaml (names and meanings are documented there).
+struct ServerOptions {
+  std::string vocabulary;              // vocabulary file (.gtvoc); or taken from `map`
+  std::string preset;                  // retrieval preset YAML (config/high_accuracy.yaml)
+  std::string map;                     // map file loaded at start (optional)
+  Mode mode = Mode::kMapping;
+  std::string map_frame = "map";
+  std::string odom_frame = "odom";
+  std::string camera_frame;            // overrides the image header's frame_id when set
+  double meters_per_pixel = 0.00025;   // metres per pixel on the floor
+  bool use_tf = true;                  // look up the camera pose in map_frame
+  double tf_timeout = 0.05;            // seconds to wait for a transform
+  double keyframe_min_distance = 0.05; // metres moved since the last keyframe
+  double keyframe_min_angle = 0.35;    // radians turned since the last keyframe
+  int keyframe_every_n = 10;           // without TF: every Nth processed image
+  int candidates = 5;                  // K, candidates retrieved and verified
+  int min_inliers = 6;                 // inliers a verified pose needs
+  int exclude_recent = 20;             // newest keyframes not reported as loop closures
+  bool publish_tf = false;             // publish map -> odom from fixes
+  double localized_timeout = 2.0;      // seconds a fix counts as "localized" in diagnostics
+  double planar_variance = 1e-9;       // variance on z, roll and pitch of ~pose
+  double camera_height = 0.0;          // for markers only, metres
+
+  void Check() const;  // throws std::invalid_argument naming the bad parameter
+};
+
+// Reads ServerOptions from the private node handle. Throws std::invalid_argument.
+ServerOptions ReadOptions(const ros::NodeHandle& pnh);
+
+class LocalizerServer {
+ public:
+  // Throws std::runtime_error / std::invalid_argument when the vocabulary, preset or map
+  // cannot be loaded (the nodelet reports it and stays inert).
+  LocalizerServer(ros::NodeHandle nh, ros::NodeHandle pnh, const ServerOptions& options);
+  ~LocalizerServer();
+  LocalizerServer(const LocalizerServer&) = delete;
+  LocalizerServer& operator=(const LocalizerServer&) = delete;
+
+ private:
+  struct Pending {
+    sensor_msgs::ImageConstPtr image;
+  };
+  struct Edge {
+    uint32_t from, to;
+  };
+
+  void ImageCallback(const sensor_msgs::ImageConstPtr& msg);
+  void WorkerLoop();
+  void ProcessImage(const sensor_msgs::ImageConstPtr& msg);
+  std::optional<gtbow::Pose2D> LookupFootprint(const std::string& frame, const ros::Time& stamp,
+                                               const std::string& target, bool warn);
+  bool IsKeyframe(const std::optional<gtbow::Pose2D>& pose);
+  void PublishFix(const gtbow::PoseFix& fix, const std_msgs::Header& header);
+  void PublishLoopClosures(const std::vector<gtbow::Candidate>& cands, uint32_t query_id,
+                           const std_msgs::Header& header);
+  void PublishDebugImage(const cv::Mat& floor_image, const gtbow::ProcessedImage& img,
+                         const std_msgs::Header& header);
+  void PublishMarkers(const ros::TimerEvent&);
+  void Diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat);
+  void Reject(const std::string& what);
+
+  bool QueryCandidates(ground_texture_bow::QueryCandidates::Request& req,
+                       ground_texture_bow::QueryCandidates::Response& res);
+  bool AddKeyframe(ground_texture_bow::AddKeyframe::Request& req,
+                   ground_texture_bow::AddKeyframe::Response& res);
+  bool LocalizeSrv(ground_texture_bow::Localize::Request& req,
+                   ground_texture_bow::Localize::Response& res);
+  bool SaveMap(ground_texture_bow::SaveMap::Request& req, ground_texture_bow::SaveMap::Response& res);
+  bool LoadMap(ground_texture_bow::LoadMap::Request& req, ground_texture_bow::LoadMap::Response& res);
+  bool ResetSrv(ground_texture_bow::Reset::Request& req, ground_texture_bow::Reset::Response& res);
+  bool GetInfo(ground_texture_bow::GetInfo::Request& req, ground_texture_bow::GetInfo::Response& res);
+  bool SetMode(ground_texture_bow::SetMode::Request& req, ground_texture_bow::SetMode::Response& res);
+
+  ros::NodeHandle nh_, pnh_;
+  ServerOptions options_;
+  std::unique_ptr<gtbow::Localizer> localizer_;
+
+  tf2_ros::Buffer tf_buffer_;
+  tf2_ros::TransformListener tf_listener_;
+  tf2_ros::TransformBroadcaster tf_broadcaster_;
+  image_transport::ImageTransport it_;
+  image_transport::Subscriber image_sub_;
+  image_transport::Publisher debug_pub_;
+  ros::Publisher pose_pub_, loop_pub_, candidates_pub_, markers_pub_;
+  std::vector<ros::ServiceServer> services_;
+  ros::Timer markers_timer_;
+  diagnostic_updater::Updater updater_;
+  ros::Timer diag_timer_;
+
+  std::atomic<Mode> mode_;
+  std::atomic<uint64_t> received_{0}, processed_{0}, dropped_{0}, rejected_{0}, missing_tf_{0},
+      fixes_{0}, loop_closures_{0}, failed_fixes_{0};
+  std::atomic<double> last_processing_ms_{0.0};
+  std::atomic<double> input_rate_hz_{0.0};
+
+  std::mutex slot_mutex_;
+  std::condition_variable slot_cv_;
+  sensor_msgs::ImageConstPtr pending_;  // guarded by slot_mutex_
+  bool stop_ = false;                   // guarded by slot_mutex_
+  std::thread worker_;
+
+  std::mutex state_mutex_;
+  std::optional<gtbow::Pose2D> last_keyframe_pose_;  // guarded by state_mutex_
+  uint64_t frames_since_keyframe_ = 0;               // guarded by state_mutex_
+  std::vector<Edge> edges_;                          // guarded by state_mutex_
+  ros::Time last_fix_time_;                          // guarded by state_mutex_
+  ros::Time last_image_time_;                        // guarded by state_mutex_
+  std::string last_error_;                           // guarded by state_mutex_
+};
+
+}  // namespace gtbow_ros

@@ -1,0 +1,578 @@
+#include "ground_texture_bow/ros/localizer_server.h"
+
+#include <chrono>
+#include <cmath>
+#include <stdexcept>
+
+#include <cv_bridge/cv_bridge.h>
+#include <geometry_msgs/TransformStamped.h>
+#include <opencv2/imgproc.hpp>
+#include <visualization_msgs/MarkerArray.h>
+
+#include "ground_texture_bow/CandidateList.h"
+#include "ground_texture_bow/LoopClosure.h"
+#include "ground_texture_bow/core/config.h"
+#include "ground_texture_bow/ros/conversions.h"
+
+namespace gtbow_ros {
+
+using ground_texture_bow::Status;
+
+Mode ParseMode(const std::string& name) {
+  if (name == "mapping") return Mode::kMapping;
+  if (name == "localization") return Mode::kLocalization;
+  if (name == "external") return Mode::kExternal;
+  throw std::invalid_argument("unknown mode '" + name + "' (mapping, localization or external)");
+}
+
+std::string ModeName(Mode mode) {
+  switch (mode) {
+    case Mode::kMapping: return "mapping";
+    case Mode::kLocalization: return "localization";
+    case Mode::kExternal: return "external";
+  }
+  return "unknown";
+}
+
+void ServerOptions::Check() const {
+  auto need = [](bool ok, const std::string& what) {
+    if (!ok) throw std::invalid_argument("parameter " + what);
+  };
+  need(!vocabulary.empty() || !map.empty(), "~vocabulary (or ~map) must be set");
+  need(!preset.empty(), "~preset must be set");
+  need(!map_frame.empty(), "~map_frame must not be empty");
+  need(meters_per_pixel > 0 && std::isfinite(meters_per_pixel), "~meters_per_pixel must be > 0");
+  need(tf_timeout >= 0, "~tf_timeout must be >= 0");
+  need(keyframe_min_distance >= 0, "~keyframe_min_distance must be >= 0");
+  need(keyframe_min_angle >= 0, "~keyframe_min_angle must be >= 0");
+  need(keyframe_every_n >= 1, "~keyframe_every_n must be >= 1");
+  need(candidates >= 1, "~candidates must be >= 1");
+  need(min_inliers >= 3, "~min_inliers must be >= 3");
+  need(exclude_recent >= 0, "~exclude_recent must be >= 0");
+  need(localized_timeout > 0, "~localized_timeout must be > 0");
+  need(planar_variance > 0, "~planar_variance must be > 0");
+}
+
+ServerOptions ReadOptions(const ros::NodeHandle& pnh) {
+  ServerOptions o;
+  std::string mode = ModeName(o.mode);
+  pnh.param("vocabulary", o.vocabulary, o.vocabulary);
+  pnh.param("preset", o.preset, std::string(GTBOW_CONFIG_DIR "/high_accuracy.yaml"));
+  pnh.param("map", o.map, o.map);
+  pnh.param("mode", mode, mode);
+  o.mode = ParseMode(mode);
+  pnh.param("map_frame", o.map_frame, o.map_frame);
+  pnh.param("odom_frame", o.odom_frame, o.odom_frame);
+  pnh.param("camera_frame", o.camera_frame, o.camera_frame);
+  pnh.param("meters_per_pixel", o.meters_per_pixel, o.meters_per_pixel);
+  pnh.param("use_tf", o.use_tf, o.use_tf);
+  pnh.param("tf_timeout", o.tf_timeout, o.tf_timeout);
+  pnh.param("keyframe_min_distance", o.keyframe_min_distance, o.keyframe_min_distance);
+  pnh.param("keyframe_min_angle", o.keyframe_min_angle, o.keyframe_min_angle);
+  pnh.param("keyframe_every_n", o.keyframe_every_n, o.keyframe_every_n);
+  pnh.param("candidates", o.candidates, o.candidates);
+  pnh.param("min_inliers", o.min_inliers, o.min_inliers);
+  pnh.param("exclude_recent", o.exclude_recent, o.exclude_recent);
+  pnh.param("publish_tf", o.publish_tf, o.publish_tf);
+  pnh.param("localized_timeout", o.localized_timeout, o.localized_timeout);
+  pnh.param("planar_variance", o.planar_variance, o.planar_variance);
+  pnh.param("camera_height", o.camera_height, o.camera_height);
+  o.Check();
+  return o;
+}
+
+LocalizerServer::LocalizerServer(ros::NodeHandle nh, ros::NodeHandle pnh,
+                                 const ServerOptions& options)
+    : nh_(nh),
+      pnh_(pnh),
+      options_(options),
+      tf_listener_(tf_buffer_),
+      it_(nh),
+      updater_(nh, pnh),
+      mode_(options.mode) {
+  options_.Check();
+  std::string vocab_path = options_.vocabulary;
+  if (vocab_path.empty()) vocab_path = gtbow::Localizer::VocabularyPathOf(options_.map);
+  gtbow::LocalizerOptions lo;
+  lo.retrieval = gtbow::LoadRetrievalConfig(options_.preset);
+  lo.localization.candidates = options_.candidates;
+  lo.localization.pose.min_inliers = options_.min_inliers;
+  lo.meters_per_pixel = options_.meters_per_pixel;
+  std::shared_ptr<gtbow::Vocabulary> vocab = gtbow::Vocabulary::Load(vocab_path);
+  localizer_ = std::make_unique<gtbow::Localizer>(std::move(vocab), vocab_path, lo);
+  if (!options_.map.empty()) localizer_->Load(options_.map);
+
+  pose_pub_ = pnh_.advertise<geometry_msgs::PoseWithCovarianceStamped>("pose", 10);
+  loop_pub_ = pnh_.advertise<ground_texture_bow::LoopClosure>("loop_closures", 50);
+  candidates_pub_ = pnh_.advertise<ground_texture_bow::CandidateList>("candidates", 10);
+  markers_pub_ = pnh_.advertise<visualization_msgs::MarkerArray>("markers", 1, true);
+  image_transport::ImageTransport pit(pnh_);
+  debug_pub_ = pit.advertise("debug_image", 1);
+
+  services_.push_back(pnh_.advertiseService("query_candidates", &LocalizerServer::QueryCandidates, this));
+  services_.push_back(pnh_.advertiseService("add_keyframe", &LocalizerServer::AddKeyframe, this));
+  services_.push_back(pnh_.advertiseService("localize", &LocalizerServer::LocalizeSrv, this));
+  services_.push_back(pnh_.advertiseService("save_map", &LocalizerServer::SaveMap, this));
+  services_.push_back(pnh_.advertiseService("load_map", &LocalizerServer::LoadMap, this));
+  services_.push_back(pnh_.advertiseService("reset", &LocalizerServer::ResetSrv, this));
+  services_.push_back(pnh_.advertiseService("get_info", &LocalizerServer::GetInfo, this));
+  services_.push_back(pnh_.advertiseService("set_mode", &LocalizerServer::SetMode, this));
+
+  updater_.setHardwareID("ground_texture_bow");
+  updater_.add("localizer", this, &LocalizerServer::Diagnose);
+  diag_timer_ = nh_.createTimer(ros::Duration(1.0), [this](const ros::TimerEvent&) { updater_.update(); });
+  markers_timer_ = nh_.createTimer(ros::Duration(1.0), &LocalizerServer::PublishMarkers, this);
+
+  worker_ = std::thread([this] { WorkerLoop(); });
+  // The subscription goes last: callbacks may start at once.
+  image_sub_ = it_.subscribe("image", 2, &LocalizerServer::ImageCallback, this);
+  ROS_INFO("ground_texture_bow: %s mode, %zu keyframes, vocabulary %s (%u words), preset %s",
+           ModeName(mode_).c_str(), localizer_->size(), vocab_path.c_str(),
+           localizer_->vocabulary().size(), options_.preset.c_str());
+}
+
+LocalizerServer::~LocalizerServer() {
+  image_sub_.shutdown();
+  {
+    std::lock_guard<std::mutex> lock(slot_mutex_);
+    stop_ = true;
+  }
+  slot_cv_.notify_all();
+  if (worker_.joinable()) worker_.join();
+}
+
+void LocalizerServer::Reject(const std::string& what) {
+  rejected_++;
+  {
+    std::lock_guard<std::mutex> lock(state_mutex_);
+    last_error_ = what;
+  }
+  ROS_WARN_THROTTLE(2.0, "ground_texture_bow: %s", what.c_str());
+}
+
+void LocalizerServer::ImageCallback(const sensor_msgs::ImageConstPtr& msg) {
+  received_++;
+  {
+    std::lock_guard<std::mutex> lock(state_mutex_);
+    const ros::Time now = ros::Time::now();
+    if (!last_image_time_.isZero()) {
+      const double dt = (now - last_image_time_).toSec();
+      if (dt > 0) input_rate_hz_ = 0.8 * input_rate_hz_.load() + 0.2 / dt;
+    }
+    last_image_time_ = now;
+  }
+  {
+    std::lock_guard<std::mutex> lock(slot_mutex_);
+    if (pending_) dropped_++;  // the waiting image is replaced by the newer one
+    pending_ = msg;
+  }
+  slot_cv_.notify_one();
+}
+
+void LocalizerServer::WorkerLoop() {
+  while (true) {
+    sensor_msgs::ImageConstPtr msg;
+    {
+      std::unique_lock<std::mutex> lock(slot_mutex_);
+      slot_cv_.wait(lock, [this] { return stop_ || pending_; });
+      if (stop_) return;
+      msg.swap(pending_);
+    }
+    try {
+      ProcessImage(msg);
+    } catch (const std::exception& e) {  // never let an image take the manager down
+      Reject(std::string("image at ") + std::to_string(msg->header.stamp.toSec()) + ": " + e.what());
+    }
+  }
+}
+
+std::optional<gtbow::Pose2D> LocalizerServer::LookupFootprint(const std::string& frame,
+                                                              const ros::Time& stamp,
+                                                              const std::string& target,
+                                                              bool warn) {
+  try {
+    const auto t = tf_buffer_.lookupTransform(target, frame, stamp, ros::Duration(options_.tf_timeout));
+    return FootprintFromTransform(t.transform);
+  } catch (const std::exception& e) {
+    if (warn) {
+      missing_tf_++;
+      ROS_WARN_THROTTLE(2.0, "ground_texture_bow: no usable transform %s -> %s at %.3f: %s",
+                        target.c_str(), frame.c_str(), stamp.toSec(), e.what());
+    }
+    return std::nullopt;
+  }
+}
+
+bool LocalizerServer::IsKeyframe(const std::optional<gtbow::Pose2D>& pose) {
+  std::lock_guard<std::mutex> lock(state_mutex_);
+  ++frames_since_keyframe_;
+  bool take;
+  if (localizer_->size() == 0) {
+    take = true;
+  } else if (pose && last_keyframe_pose_) {
+    const double d = std::hypot(pose->x - last_keyframe_pose_->x, pose->y - last_keyframe_pose_->y);
+    const double a = std::abs(std::remainder(pose->theta - last_keyframe_pose_->theta, 2 * M_PI));
+    take = d >= options_.keyframe_min_distance || a >= options_.keyframe_min_angle;
+  } else {
+    take = frames_since_keyframe_ >= static_cast<uint64_t>(options_.keyframe_every_n);
+  }
+  if (take) {
+    frames_since_keyframe_ = 0;
+    if (pose) last_keyframe_pose_ = pose;
+  }
+  return take;
+}
+
+void LocalizerServer::ProcessImage(const sensor_msgs::ImageConstPtr& msg) {
+  const auto t0 = std::chrono::steady_clock::now();
+  std_msgs::Header header = msg->header;
+  if (!options_.camera_frame.empty()) header.frame_id = options_.camera_frame;
+  if (header.stamp.isZero()) throw std::invalid_argument("zero stamp");
+  if (header.frame_id.empty() && options_.use_tf) {
+    throw std::invalid_argument("no frame_id in the image header and ~camera_frame is not set");
+  }
+  const cv::Mat floor_image = ToFloorImage(*msg);
+  const Mode mode = mode_.load();
+  std::optional<gtbow::Pose2D> pose;
+  if (options_.use_tf && mode == Mode::kMapping) {
+    pose = LookupFootprint(header.frame_id, header.stamp, options_.map_frame, true);
+  }
+  const gtbow::ProcessedImage img = localizer_->Process(floor_image);
+  if (mode == Mode::kLocalization) {
+    const gtbow::PoseFix fix = localizer_->Localize(img);
+    if (fix.success) {
+      PublishFix(fix, header);
+    } else {
+      failed_fixes_++;
+      ROS_DEBUG_THROTTLE(2.0, "ground_texture_bow: no fix: %s", fix.reason.c_str());
+    }
+  } else {
+    const uint32_t n = static_cast<uint32_t>(localizer_->size());
+    const uint32_t recent = static_cast<uint32_t>(options_.exclude_recent);
+    const auto cands = localizer_->Query(img, static_cast<size_t>(options_.candidates), true,
+                                         n > recent ? n - recent : 0, n);
+    uint32_t query_id = ground_texture_bow::CandidateList::NO_ID;
+    if (mode == Mode::kMapping && IsKeyframe(pose)) {
+      query_id = localizer_->Add(img, ToNanoseconds(header.stamp), pose);
+    }
+    ground_texture_bow::CandidateList list;
+    list.header = header;
+    list.query_id = query_id;
+    for (const auto& c : cands) list.candidates.push_back(ToCandidateMsg(c));
+    candidates_pub_.publish(list);
+    PublishLoopClosures(cands, query_id, header);
+  }
+  if (debug_pub_.getNumSubscribers() > 0) PublishDebugImage(floor_image, img, header);
+  processed_++;
+  last_processing_ms_ =
+      std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+}
+
+void LocalizerServer::PublishFix(const gtbow::PoseFix& fix, const std_msgs::Header& header) {
+  fixes_++;
+  {
+    std::lock_guard<std::mutex> lock(state_mutex_);
+    last_fix_time_ = ros::Time::now();
+  }
+  pose_pub_.publish(ToPoseWithCovariance(fix.map_from_camera, fix.covariance, header.stamp,
+                                         options_.map_frame, options_.planar_variance));
+  if (!options_.publish_tf) return;
+  // map -> odom such that map -> odom -> camera gives the fix (planar).
+  const auto odom = LookupFootprint(header.frame_id, header.stamp, options_.odom_frame, true);
+  if (!odom) return;
+  const gtbow::Pose2D& m = fix.map_from_camera;
+  const double th = m.theta - odom->theta;
+  const double c = std::cos(th), s = std::sin(th);
+  geometry_msgs::TransformStamped t;
+  t.header.stamp = header.stamp;
+  t.header.frame_id = options_.map_frame;
+  t.child_frame_id = options_.odom_frame;
+  t.transform.translation.x = m.x - (c * odom->x - s * odom->y);
+  t.transform.translation.y = m.y - (s * odom->x + c * odom->y);
+  t.transform.rotation.z = std::sin(0.5 * th);
+  t.transform.rotation.w = std::cos(0.5 * th);
+  tf_broadcaster_.sendTransform(t);
+}
+
+void LocalizerServer::PublishLoopClosures(const std::vector<gtbow::Candidate>& cands,
+                                          uint32_t query_id, const std_msgs::Header& header) {
+  for (const auto& c : cands) {
+    if (!c.verified) continue;  // the ranked list goes to ~candidates; closures are verified
+    ground_texture_bow::LoopClosure lc;
+    lc.header = header;
+    lc.query_id = query_id;
+    lc.query_stamp = header.stamp;
+    lc.match_id = c.id;
+    lc.match_stamp = FromNanoseconds(c.stamp_ns);
+    lc.score = c.score;
+    lc.inliers = static_cast<uint32_t>(c.relative.inliers);
+    lc.match_from_query = ToOpticalPose2D(c.relative.floor_from_query);
+    const auto cov = ToOpticalCovariance(c.relative.covariance);
+    std::copy(cov.begin(), cov.end(), lc.covariance.begin());
+    lc.status = ground_texture_bow::LoopClosure::VERIFIED;
+    loop_pub_.publish(lc);
+    loop_closures_++;
+    if (query_id != ground_texture_bow::LoopClosure::NO_ID) {
+      std::lock_guard<std::mutex> lock(state_mutex_);
+      edges_.push_back({query_id, c.id});
+    }
+    break;  // the best verified candidate
+  }
+}
+
+void LocalizerServer::PublishDebugImage(const cv::Mat& floor_image, const gtbow::ProcessedImage& img,
+                                        const std_msgs::Header& header) {
+  cv::Mat color;
+  cv::Mat camera_view;
+  cv::flip(floor_image, camera_view, 0);  // back to the camera's view
+  cv::cvtColor(camera_view, color, cv::COLOR_GRAY2BGR);
+  const int h = floor_image.rows;
+  for (const auto& k : img.features.keypoints) {
+    cv::circle(color, cv::Point2f(k.x, static_cast<float>(h - 1) - k.y), std::max(2.0f, 0.5f * k.size),
+               cv::Scalar(0, 200, 0), 1, cv::LINE_AA);
+  }
+  debug_pub_.publish(cv_bridge::CvImage(header, "bgr8", color).toImageMsg());
+}
+
+void LocalizerServer::PublishMarkers(const ros::TimerEvent&) {
+  if (markers_pub_.getNumSubscribers() == 0) return;
+  visualization_msgs::MarkerArray arr;
+  visualization_msgs::Marker fp, edges;
+  fp.header.frame_id = edges.header.frame_id = options_.map_frame;
+  fp.header.stamp = edges.header.stamp = ros::Time::now();
+  fp.ns = "keyframes";
+  edges.ns = "loop_closures";
+  fp.type = edges.type = visualization_msgs::Marker::LINE_LIST;
+  fp.action = edges.action = visualization_msgs::Marker::ADD;
+  fp.pose.orientation.w = edges.pose.orientation.w = 1.0;
+  fp.scale.x = 0.002;
+  edges.scale.x = 0.004;
+  fp.color.g = 0.8f;
+  fp.color.a = 0.6f;
+  edges.color.r = 1.0f;
+  edges.color.a = 0.9f;
+  const auto kfs = localizer_->Keyframes();
+  for (const auto& k : kfs) {
+    if (!k.has_pose) continue;
+    const auto corners = gtbow::Footprint(k.map_from_camera, {k.width, k.height, options_.meters_per_pixel});
+    for (int i = 0; i < 4; ++i) {
+      geometry_msgs::Point a, b;
+      a.x = corners[i].x;
+      a.y = corners[i].y;
+      b.x = corners[(i + 1) % 4].x;
+      b.y = corners[(i + 1) % 4].y;
+      fp.points.push_back(a);
+      fp.points.push_back(b);
+    }
+  }
+  {
+    std::lock_guard<std::mutex> lock(state_mutex_);
+    for (const Edge& e : edges_) {
+      if (e.from >= kfs.size() || e.to >= kfs.size()) continue;
+      if (!kfs[e.from].has_pose || !kfs[e.to].has_pose) continue;
+      geometry_msgs::Point a, b;
+      a.x = kfs[e.from].map_from_camera.x;
+      a.y = kfs[e.from].map_from_camera.y;
+      b.x = kfs[e.to].map_from_camera.x;
+      b.y = kfs[e.to].map_from_camera.y;
+      edges.points.push_back(a);
+      edges.points.push_back(b);
+    }
+  }
+  if (fp.points.empty()) fp.action = visualization_msgs::Marker::DELETE;
+  if (edges.points.empty()) edges.action = visualization_msgs::Marker::DELETE;
+  arr.markers.push_back(fp);
+  arr.markers.push_back(edges);
+  markers_pub_.publish(arr);
+}
+
+void LocalizerServer::Diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat) {
+  bool localized = false;
+  std::string last_error;
+  {
+    std::lock_guard<std::mutex> lock(state_mutex_);
+    localized = !last_fix_time_.isZero() &&
+                (ros::Time::now() - last_fix_time_).toSec() <= options_.localized_timeout;
+    last_error = last_error_;
+  }
+  const Mode mode = mode_.load();
+  if (rejected_ > 0 || missing_tf_ > 0) {
+    stat.summary(diagnostic_msgs::DiagnosticStatus::WARN,
+                 "rejected inputs: " + std::to_string(rejected_.load()) +
+                     ", missing transforms: " + std::to_string(missing_tf_.load()));
+  } else if (mode == Mode::kLocalization && !localized) {
+    stat.summary(diagnostic_msgs::DiagnosticStatus::WARN, "not localized");
+  } else {
+    stat.summary(diagnostic_msgs::DiagnosticStatus::OK, ModeName(mode));
+  }
+  stat.add("mode", ModeName(mode));
+  stat.add("input rate (Hz)", input_rate_hz_.load());
+  stat.add("processing time (ms)", last_processing_ms_.load());
+  stat.add("database size", localizer_->size());
+  stat.add("images received", received_.load());
+  stat.add("images processed", processed_.load());
+  stat.add("images dropped", dropped_.load());
+  stat.add("rejected inputs", rejected_.load());
+  stat.add("missing transforms", missing_tf_.load());
+  stat.add("fixes", fixes_.load());
+  stat.add("failed fixes", failed_fixes_.load());
+  stat.add("loop closures", loop_closures_.load());
+  stat.add("localized", localized);
+  stat.add("last error", last_error);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Services: always return true; the outcome is in status (cartographer_ros's StatusResponse).
+
+bool LocalizerServer::QueryCandidates(ground_texture_bow::QueryCandidates::Request& req,
+                                      ground_texture_bow::QueryCandidates::Response& res) {
+  try {
+    const size_t k = req.k > 0 ? req.k : static_cast<size_t>(options_.candidates);
+    std::vector<gtbow::Candidate> cands;
+    if (req.use_keyframe_id) {
+      cands = localizer_->QueryKeyframe(req.keyframe_id, k, req.verify);
+    } else {
+      cands = localizer_->Query(localizer_->Process(ToFloorImage(req.image)), k, req.verify);
+    }
+    for (const auto& c : cands) res.candidates.push_back(ToCandidateMsg(c));
+    res.status = MakeStatus(Status::OK, std::to_string(cands.size()) + " candidates");
+  } catch (const std::out_of_range& e) {
+    res.status = MakeStatus(Status::NOT_FOUND, e.what());
+  } catch (const std::invalid_argument& e) {
+    Reject(std::string("query_candidates: ") + e.what());
+    res.status = MakeStatus(Status::INVALID_ARGUMENT, e.what());
+  } catch (const std::exception& e) {
+    res.status = MakeStatus(Status::INTERNAL, e.what());
+  }
+  return true;
+}
+
+bool LocalizerServer::AddKeyframe(ground_texture_bow::AddKeyframe::Request& req,
+                                  ground_texture_bow::AddKeyframe::Response& res) {
+  try {
+    if (mode_.load() == Mode::kLocalization) {
+      res.status = MakeStatus(Status::FAILED_PRECONDITION,
+                              "localization mode: the map is read-only (set_mode first)");
+      return true;
+    }
+    std::optional<gtbow::Pose2D> pose;
+    if (req.has_pose) pose = FromPose2DMsg(req.pose);
+    const gtbow::ProcessedImage img = localizer_->Process(ToFloorImage(req.image));
+    res.id = localizer_->Add(img, ToNanoseconds(req.image.header.stamp), pose);
+    res.status = MakeStatus(Status::OK, "keyframe " + std::to_string(res.id) + " with " +
+                                            std::to_string(img.features.size()) + " keypoints");
+  } catch (const std::invalid_argument& e) {
+    Reject(std::string("add_keyframe: ") + e.what());
+    res.status = MakeStatus(Status::INVALID_ARGUMENT, e.what());
+  } catch (const std::exception& e) {
+    res.status = MakeStatus(Status::INTERNAL, e.what());
+  }
+  return true;
+}
+
+bool LocalizerServer::LocalizeSrv(ground_texture_bow::Localize::Request& req,
+                                  ground_texture_bow::Localize::Response& res) {
+  try {
+    const gtbow::PoseFix fix = localizer_->Localize(localizer_->Process(ToFloorImage(req.image)));
+    res.localized = fix.success;
+    if (fix.success) {
+      res.pose = ToPoseWithCovariance(fix.map_from_camera, fix.covariance, req.image.header.stamp,
+                                      options_.map_frame, options_.planar_variance);
+      res.keyframe_id = fix.keyframe;
+      res.inliers = static_cast<uint32_t>(fix.inliers);
+      res.status = MakeStatus(Status::OK, "localized against keyframe " + std::to_string(fix.keyframe));
+    } else {
+      res.status = MakeStatus(Status::NOT_FOUND, fix.reason);
+    }
+  } catch (const std::invalid_argument& e) {
+    Reject(std::string("localize: ") + e.what());
+    res.status = MakeStatus(Status::INVALID_ARGUMENT, e.what());
+  } catch (const std::exception& e) {
+    res.status = MakeStatus(Status::INTERNAL, e.what());
+  }
+  return true;
+}
+
+bool LocalizerServer::SaveMap(ground_texture_bow::SaveMap::Request& req,
+                              ground_texture_bow::SaveMap::Response& res) {
+  try {
+    if (req.path.empty()) throw std::invalid_argument("empty path");
+    localizer_->Save(req.path);
+    res.status = MakeStatus(Status::OK, "saved " + std::to_string(localizer_->size()) +
+                                            " keyframes to " + req.path);
+  } catch (const std::exception& e) {
+    Reject(std::string("save_map: ") + e.what());
+    res.status = MakeStatus(Status::INVALID_ARGUMENT, e.what());
+  }
+  return true;
+}
+
+bool LocalizerServer::LoadMap(ground_texture_bow::LoadMap::Request& req,
+                              ground_texture_bow::LoadMap::Response& res) {
+  try {
+    if (req.path.empty()) throw std::invalid_argument("empty path");
+    localizer_->Load(req.path);
+    {
+      std::lock_guard<std::mutex> lock(state_mutex_);
+      edges_.clear();
+      last_keyframe_pose_.reset();
+    }
+    res.keyframes = static_cast<uint32_t>(localizer_->size());
+    res.status = MakeStatus(Status::OK, "loaded " + std::to_string(res.keyframes) +
+                                            " keyframes from " + req.path);
+  } catch (const std::exception& e) {
+    Reject(std::string("load_map: ") + e.what());
+    res.status = MakeStatus(Status::INVALID_ARGUMENT, e.what());
+  }
+  return true;
+}
+
+bool LocalizerServer::ResetSrv(ground_texture_bow::Reset::Request&, ground_texture_bow::Reset::Response& res) {
+  if (mode_.load() == Mode::kLocalization) {
+    res.status = MakeStatus(Status::FAILED_PRECONDITION, "localization mode: the map is read-only");
+    return true;
+  }
+  localizer_->Reset();
+  {
+    std::lock_guard<std::mutex> lock(state_mutex_);
+    edges_.clear();
+    last_keyframe_pose_.reset();
+  }
+  res.status = MakeStatus(Status::OK, "map cleared");
+  return true;
+}
+
+bool LocalizerServer::GetInfo(ground_texture_bow::GetInfo::Request&, ground_texture_bow::GetInfo::Response& res) {
+  res.mode = ModeName(mode_.load());
+  res.database_size = static_cast<uint32_t>(localizer_->size());
+  res.vocabulary_size = localizer_->vocabulary().size();
+  res.vocabulary_path = localizer_->vocabulary_path();
+  res.preset = options_.preset;
+  res.images_received = received_.load();
+  res.images_processed = processed_.load();
+  res.images_dropped = dropped_.load();
+  res.images_rejected = rejected_.load();
+  res.fixes = fixes_.load();
+  res.loop_closures = loop_closures_.load();
+  {
+    std::lock_guard<std::mutex> lock(state_mutex_);
+    res.localized = !last_fix_time_.isZero() &&
+                    (ros::Time::now() - last_fix_time_).toSec() <= options_.localized_timeout;
+  }
+  res.status = MakeStatus(Status::OK, "");
+  return true;
+}
+
+bool LocalizerServer::SetMode(ground_texture_bow::SetMode::Request& req,
+                              ground_texture_bow::SetMode::Response& res) {
+  try {
+    const Mode m = ParseMode(req.mode);
+    res.previous_mode = ModeName(mode_.exchange(m));
+    res.status = MakeStatus(Status::OK, "mode " + req.mode);
+  } catch (const std::exception& e) {
+    res.status = MakeStatus(Status::INVALID_ARGUMENT, e.what());
+  }
+  return true;
+}
+
+}  // namespace gtbow_ros

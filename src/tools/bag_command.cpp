@@ -1,0 +1,165 @@
+// gtbow images-to-bag: any dataset (shared/DATASET_FORMAT.md) as a rosbag a robot would have
+// recorded: the images of one split on a camera topic, in sequence order, and the camera's
+// ground-truth pose as TF (map -> camera optical frame) and as a PoseStamped topic.
+//
+// The camera is a downward optical frame (x = image right, y = image down, z down onto the
+// floor), so it sees the floor mirrored with respect to the dataset's floor frame (which, like
+// the map, has z up): images are stored flipped upside down. The localizer flips them back
+// (ros/conversions.h), and its fixes are then in the dataset's floor frame.
+#include <cmath>
+#include <filesystem>
+#include <memory>
+#include <string>
+
+#include <geometry_msgs/PoseStamped.h>
+#include <opencv2/imgproc.hpp>
+#include <rosbag/bag.h>
+#include <sensor_msgs/Image.h>
+#include <sensor_msgs/image_encodings.h>
+#include <tf2_msgs/TFMessage.h>
+
+#include "commands.h"
+#include "ground_texture_bow/core/dataset.h"
+#include "ground_texture_bow/core/file_util.h"
+#include "ground_texture_bow/core/progress.h"
+#include "ground_texture_bow/ros/conversions.h"
+
+namespace fs = std::filesystem;
+
+namespace gtbow {
+namespace tools {
+namespace {
+
+struct BagArgs {
+  std::string dataset;
+  std::string out;
+  std::string split = "database";
+  std::string topic = "/camera/image_raw";
+  std::string frame = "camera_optical";
+  std::string map_frame = "map";
+  std::string truth_topic = "/ground_truth/pose";
+  std::string encoding = "mono8";
+  double rate = 10.0;
+  double start = 1000.0;
+  double height = 0.2;
+  size_t max_images = 0;
+  bool no_tf = false;
+  bool quiet = false;
+};
+
+sensor_msgs::Image ToMessage(const cv::Mat& gray_floor_view, const std::string& encoding) {
+  cv::Mat img;
+  cv::flip(gray_floor_view, img, 0);  // the optical frame sees the floor mirrored
+  namespace enc = sensor_msgs::image_encodings;
+  if (encoding == enc::BGR8 || encoding == enc::RGB8) {
+    cv::cvtColor(img, img, cv::COLOR_GRAY2BGR);  // grey: BGR and RGB are the same bytes
+  } else if (encoding == enc::MONO16) {
+    img.convertTo(img, CV_16U, 257.0);
+  } else if (encoding != enc::MONO8) {
+    throw std::invalid_argument("--encoding must be mono8, mono16, bgr8 or rgb8, not '" +
+                                encoding + "'");
+  }
+  sensor_msgs::Image m;
+  m.height = static_cast<uint32_t>(img.rows);
+  m.width = static_cast<uint32_t>(img.cols);
+  m.encoding = encoding;
+  m.step = static_cast<uint32_t>(img.cols * img.elemSize());
+  m.data.resize(m.step * m.height);
+  for (int r = 0; r < img.rows; ++r) {
+    std::memcpy(&m.data[r * m.step], img.ptr(r), m.step);
+  }
+  return m;
+}
+
+void RunImagesToBag(const BagArgs& a) {
+  const Dataset ds = Dataset::Load(a.dataset);
+  const auto names = ds.Split(a.split);  // throws naming the split when it is missing
+  if (names.empty()) throw std::invalid_argument("split '" + a.split + "' is empty");
+  if (!(a.rate > 0)) throw std::invalid_argument("--rate must be > 0");
+  if (!(a.start > 0)) throw std::invalid_argument("--start must be > 0 (ROS time 0 means unset)");
+  const size_t n = a.max_images > 0 ? std::min(a.max_images, names.size()) : names.size();
+  const fs::path out = a.out;
+  const fs::path tmp = out.string() + ".partial";
+  {
+    rosbag::Bag bag;
+    try {
+      bag.open(tmp.string(), rosbag::bagmode::Write);
+    } catch (const std::exception& e) {
+      throw std::runtime_error("cannot write " + out.string() + ": " + e.what());
+    }
+    ProgressBar bar("images-to-bag", n, !a.quiet);
+    try {
+      for (size_t i = 0; i < n; ++i) {
+        const ros::Time stamp(a.start + static_cast<double>(i) / a.rate);
+        sensor_msgs::Image img = ToMessage(ds.LoadGray(names[i]), a.encoding);
+        img.header.stamp = stamp;
+        img.header.frame_id = a.frame;
+        img.header.seq = static_cast<uint32_t>(i);
+        const Pose2D& pose = ds.PoseOf(names[i]);
+        geometry_msgs::TransformStamped t;
+        t.header.stamp = stamp;
+        t.header.frame_id = a.map_frame;
+        t.child_frame_id = a.frame;
+        t.transform = gtbow_ros::TransformFromFootprint(pose, a.height);
+        if (!a.no_tf) {
+          tf2_msgs::TFMessage tf;
+          tf.transforms.push_back(t);
+          bag.write("/tf", stamp, tf);
+        }
+        geometry_msgs::PoseStamped truth;
+        truth.header = t.header;
+        truth.header.frame_id = a.map_frame;
+        truth.pose.position.x = pose.x;
+        truth.pose.position.y = pose.y;
+        truth.pose.orientation.z = std::sin(0.5 * pose.theta);
+        truth.pose.orientation.w = std::cos(0.5 * pose.theta);
+        bag.write(a.truth_topic, stamp, truth);
+        bag.write(a.topic, stamp, img);
+        bar.Add();
+      }
+      bar.Finish();
+      bag.close();
+    } catch (...) {
+      bag.close();
+      std::error_code ec;
+      fs::remove(tmp, ec);
+      throw;
+    }
+  }
+  fs::rename(tmp, out);
+  const ImageGeometry& g = ds.info().geometry;
+  std::printf("%zu images of split '%s' written to %s\n  %s (%s), TF %s -> %s%s, ground truth %s\n"
+              "  %.1f Hz from t = %.1f s; %dx%d pixels, meters_per_pixel %.6g\n",
+              n, a.split.c_str(), out.c_str(), a.topic.c_str(), a.encoding.c_str(),
+              a.map_frame.c_str(), a.frame.c_str(), a.no_tf ? " (omitted: --no-tf)" : "",
+              a.truth_topic.c_str(), a.rate, a.start, g.width, g.height, g.meters_per_pixel);
+}
+
+}  // namespace
+
+void RegisterImagesToBag(CLI::App& app) {
+  auto a = std::make_shared<BagArgs>();
+  CLI::App* cmd = app.add_subcommand(
+      "images-to-bag", "Write a dataset split as a rosbag of camera images plus ground-truth TF");
+  cmd->add_option("--dataset", a->dataset, "Dataset (shared/DATASET_FORMAT.md)")->required();
+  cmd->add_option("-o,--out", a->out, "Output bag file")->required();
+  cmd->add_option("--split", a->split, "Split to write, in sequence order")->capture_default_str();
+  cmd->add_option("--topic", a->topic, "Image topic")->capture_default_str();
+  cmd->add_option("--frame", a->frame, "Camera optical frame id")->capture_default_str();
+  cmd->add_option("--map-frame", a->map_frame, "Parent frame of the ground truth")
+      ->capture_default_str();
+  cmd->add_option("--truth-topic", a->truth_topic, "Ground-truth PoseStamped topic (camera footprint)")
+      ->capture_default_str();
+  cmd->add_option("--encoding", a->encoding, "mono8, mono16, bgr8 or rgb8")->capture_default_str();
+  cmd->add_option("--rate", a->rate, "Images per second")->capture_default_str();
+  cmd->add_option("--start", a->start, "Stamp of the first image, seconds")->capture_default_str();
+  cmd->add_option("--height", a->height, "Camera height above the floor, metres (TF z)")
+      ->capture_default_str();
+  cmd->add_option("--max-images", a->max_images, "Write at most this many images (0 = all)");
+  cmd->add_flag("--no-tf", a->no_tf, "Omit /tf (a robot that must localize globally)");
+  cmd->add_flag("-q,--quiet", a->quiet, "No progress bar");
+  cmd->callback([a]() { RunImagesToBag(*a); });
+}
+
+}  // namespace tools
+}  // namespace gtbow

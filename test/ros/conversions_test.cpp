@@ -1,0 +1,155 @@
+// Unit tests of the message conversions (no ROS master needed).
+#include "ground_texture_bow/ros/conversions.h"
+
+#include <cmath>
+
+#include <gtest/gtest.h>
+#include <sensor_msgs/image_encodings.h>
+
+namespace gtbow_ros {
+namespace {
+
+sensor_msgs::Image MakeImage(const std::string& encoding, int w, int h, int bytes_per_pixel) {
+  sensor_msgs::Image m;
+  m.width = w;
+  m.height = h;
+  m.encoding = encoding;
+  m.step = w * bytes_per_pixel;
+  m.data.resize(m.step * h);
+  for (int v = 0; v < h; ++v) {
+    for (int u = 0; u < w; ++u) {
+      for (int c = 0; c < bytes_per_pixel; ++c) m.data[v * m.step + u * bytes_per_pixel + c] = static_cast<uint8_t>(v * 10 + c);
+    }
+  }
+  return m;
+}
+
+TEST(Conversions, ImagesOfEveryEncodingBecomeFlippedGrey) {
+  // Row v of the message has value 10 v; the core sees it upside down.
+  const cv::Mat mono = ToFloorImage(MakeImage("mono8", 4, 3, 1));
+  ASSERT_EQ(mono.type(), CV_8UC1);
+  EXPECT_EQ(mono.at<uint8_t>(0, 0), 20);
+  EXPECT_EQ(mono.at<uint8_t>(2, 0), 0);
+  // Colour: a grey pixel (equal channels) keeps its value.
+  sensor_msgs::Image bgr = MakeImage("bgr8", 4, 3, 3);
+  for (size_t i = 0; i < bgr.data.size(); i += 3) bgr.data[i + 1] = bgr.data[i + 2] = bgr.data[i];
+  EXPECT_EQ(ToFloorImage(bgr).at<uint8_t>(0, 1), 20);
+  sensor_msgs::Image rgb = bgr;
+  rgb.encoding = "rgb8";
+  EXPECT_EQ(ToFloorImage(rgb).at<uint8_t>(2, 3), 0);
+  // mono16: the high byte.
+  sensor_msgs::Image m16 = MakeImage("mono16", 4, 3, 2);
+  for (size_t i = 0; i < m16.data.size(); i += 2) {
+    const uint16_t v = static_cast<uint16_t>(m16.data[i] * 256);  // little endian
+    m16.data[i] = v & 0xff;
+    m16.data[i + 1] = v >> 8;
+  }
+  m16.is_bigendian = 0;
+  EXPECT_EQ(ToFloorImage(m16).at<uint8_t>(0, 0), 20);
+  // Row padding (step > width) is honoured.
+  sensor_msgs::Image padded = MakeImage("mono8", 4, 3, 1);
+  padded.step = 6;
+  padded.data.assign(18, 7);
+  EXPECT_EQ(ToFloorImage(padded).cols, 4);
+}
+
+TEST(Conversions, BadImagesAreRejectedWithTheReason) {
+  auto expect_reason = [](const sensor_msgs::Image& m, const std::string& what) {
+    try {
+      ToFloorImage(m);
+      ADD_FAILURE() << "accepted: " << what;
+    } catch (const std::invalid_argument& e) {
+      EXPECT_NE(std::string(e.what()).find(what), std::string::npos) << e.what();
+    }
+  };
+  expect_reason(MakeImage("32FC1", 4, 3, 4), "unsupported encoding '32FC1'");
+  expect_reason(MakeImage("mono8", 0, 0, 1), "empty image");
+  sensor_msgs::Image short_data = MakeImage("mono8", 4, 3, 1);
+  short_data.data.resize(5);
+  expect_reason(short_data, "too small");
+}
+
+TEST(Conversions, FootprintsRoundTripThroughTransforms) {
+  for (double theta : {0.0, 0.7, -2.5, 3.1}) {
+    const gtbow::Pose2D f{1.5, -0.25, theta};
+    const geometry_msgs::Transform t = TransformFromFootprint(f, 0.3);
+    EXPECT_NEAR(t.translation.z, 0.3, 1e-12);
+    const gtbow::Pose2D back = FootprintFromTransform(t);
+    EXPECT_NEAR(back.x, f.x, 1e-9);
+    EXPECT_NEAR(back.y, f.y, 1e-9);
+    EXPECT_NEAR(std::remainder(back.theta - theta, 2 * M_PI), 0.0, 1e-9);
+  }
+  // A tilted camera: the footprint is where the optical axis meets the floor.
+  geometry_msgs::Transform tilted = TransformFromFootprint({0, 0, 0}, 1.0);
+  // Rotate by 0.1 rad about the camera's x axis: q * (cos .05, sin .05, 0, 0).
+  const double c = std::cos(0.05), s = std::sin(0.05);
+  const auto q = tilted.rotation;  // (w=0, x=1, y=0, z=0)
+  tilted.rotation.w = q.w * c - q.x * s;
+  tilted.rotation.x = q.w * s + q.x * c;
+  tilted.rotation.y = q.y * c + q.z * s;
+  tilted.rotation.z = q.z * c - q.y * s;
+  const gtbow::Pose2D f = FootprintFromTransform(tilted);
+  EXPECT_NEAR(std::abs(f.y), std::tan(0.1), 1e-6);
+  // A camera looking sideways or a NaN are refused.
+  geometry_msgs::Transform side;
+  side.rotation.w = 1.0;  // identity: optical axis along map +z (up)
+  EXPECT_THROW(FootprintFromTransform(side), std::invalid_argument);
+  geometry_msgs::Transform nan = TransformFromFootprint({0, 0, 0}, 1.0);
+  nan.translation.x = NAN;
+  EXPECT_THROW(FootprintFromTransform(nan), std::invalid_argument);
+}
+
+TEST(Conversions, RelativePosesAndCovariancesInTheOpticalFrame) {
+  const geometry_msgs::Pose2D p = ToOpticalPose2D({0.01, 0.02, 0.3});
+  EXPECT_DOUBLE_EQ(p.x, 0.01);
+  EXPECT_DOUBLE_EQ(p.y, -0.02);
+  EXPECT_DOUBLE_EQ(p.theta, -0.3);
+  const std::array<double, 9> c = {1, 2, 3, 2, 4, 5, 3, 5, 6};
+  const auto o = ToOpticalCovariance(c);
+  const std::array<double, 9> expect = {1, -2, -3, -2, 4, 5, -3, 5, 6};
+  EXPECT_EQ(o, expect);
+}
+
+TEST(Conversions, PoseWithCovarianceHasThePlanarCovarianceInPlace) {
+  const std::array<double, 9> c = {1e-6, 2e-7, 3e-8, 2e-7, 4e-6, 5e-8, 3e-8, 5e-8, 6e-5};
+  const auto m = ToPoseWithCovariance({1, 2, M_PI / 2}, c, ros::Time(5, 0), "map", 1e-9);
+  EXPECT_EQ(m.header.frame_id, "map");
+  EXPECT_EQ(m.header.stamp, ros::Time(5, 0));
+  EXPECT_NEAR(YawOf(m.pose.pose.orientation.x, m.pose.pose.orientation.y,
+                    m.pose.pose.orientation.z, m.pose.pose.orientation.w), M_PI / 2, 1e-12);
+  EXPECT_EQ(m.pose.covariance[0], 1e-6);       // x x
+  EXPECT_EQ(m.pose.covariance[1], 2e-7);       // x y
+  EXPECT_EQ(m.pose.covariance[5], 3e-8);       // x yaw
+  EXPECT_EQ(m.pose.covariance[35], 6e-5);      // yaw yaw
+  EXPECT_EQ(m.pose.covariance[6 * 5 + 1], 5e-8);  // yaw y
+  EXPECT_EQ(m.pose.covariance[14], 1e-9);      // z z
+  EXPECT_EQ(m.pose.covariance[21], 1e-9);      // roll roll
+  EXPECT_EQ(m.pose.covariance[28], 1e-9);      // pitch pitch
+}
+
+TEST(Conversions, StampsCandidatesAndPoses) {
+  const ros::Time t(1234, 567890123);
+  EXPECT_EQ(FromNanoseconds(ToNanoseconds(t)), t);
+  gtbow::Candidate c;
+  c.id = 7;
+  c.score = 0.5f;
+  c.stamp_ns = ToNanoseconds(t);
+  c.has_pose = true;
+  c.map_from_camera = {1, 2, 3};
+  c.verified = true;
+  c.relative.success = true;
+  c.relative.inliers = 42;
+  c.relative.floor_from_query = {0.1, 0.2, 0.3};
+  const auto m = ToCandidateMsg(c);
+  EXPECT_EQ(m.id, 7u);
+  EXPECT_EQ(m.stamp, t);
+  EXPECT_EQ(m.inliers, 42u);
+  EXPECT_DOUBLE_EQ(m.match_from_query.y, -0.2);
+  EXPECT_DOUBLE_EQ(m.pose.theta, 3.0);
+  geometry_msgs::Pose2D bad;
+  bad.x = NAN;
+  EXPECT_THROW(FromPose2DMsg(bad), std::invalid_argument);
+}
+
+}  // namespace
+}  // namespace gtbow_ros
