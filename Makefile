@@ -21,11 +21,14 @@ BENCH_OUT  ?= $(CURDIR)/build/benchmark/eval
 deps:
 	@bash scripts/install_deps.sh
 
-$(WS)/src/ground_texture_bow:
-	@mkdir -p $(WS)/src
-	@ln -sfn $(CURDIR) $(WS)/src/ground_texture_bow
+# The workspace's package directory mirrors the repository entry by entry (symlinks), leaving
+# out build/: a symlink to the repository root would contain the workspace itself, and
+# roslaunch's package walk (os.walk with followlinks) would loop until ELOOP.
+.PHONY: ws-src
+ws-src:
+	@bash scripts/link_package.sh "$(CURDIR)" "$(WS)/src/ground_texture_bow"
 
-build: deps $(WS)/src/ground_texture_bow
+build: deps ws-src
 	@$(CATKIN) > $(CURDIR)/build/build.log 2>&1 || { tail -n 60 $(CURDIR)/build/build.log; echo "build failed: full log in build/build.log"; exit 1; }
 	@echo "built: $(GTBOW)"
 
@@ -37,7 +40,7 @@ demo: build
 	@$(GTBOW) eval --dataset build/demo_floor --words 3000 --out build/demo_eval \
 	  --cache build/cache --timing-queries 20 -q
 
-test: deps $(WS)/src/ground_texture_bow
+test: deps ws-src
 	@bash scripts/run_tests.sh "$(WS)" "$(JOBS)"
 
 # The paper's size: about 32,000 database images of asphalt, query days 0 to 180, a separate

@@ -12,7 +12,7 @@ PACKAGES=(
   libtf2-ros-dev libtf2-geometry-msgs-dev librosbag-dev librostest-dev python3-rostest
   libnodeletlib-dev libnodelet-dev ros-sensor-msgs ros-geometry-msgs ros-message-generation
   python3-rosbag python3-roslaunch python3-rosmaster
-  libdiagnostic-updater-dev libvisualization-msgs-dev
+  libdiagnostic-updater-dev libvisualization-msgs-dev libnodeletlib-tools
   # core libraries
   libopencv-dev libflann-dev liblz4-dev libeigen3-dev libyaml-cpp-dev libcli11-dev
   # tests and plots

@@ -1,0 +1,388 @@
+// rostest client for the localizer node(s) started by test/ros/*.test. It replays the bags that
+// test/ros/make_test_data.sh generated (images and ground-truth TF of a small synthetic floor)
+// and checks what comes out against the ground truth. Each .test runs one test suite:
+//   mapping.test       Mapping.*     revisits are answered with the right keyframes
+//   localization.test  SaveLoad.*    a saved map loads into a fresh node, which answers the same
+//                                    and localizes a later-day run within 4.8 mm and 1.5 deg
+//   bad_input.test     BadInput.*    bad input is counted and reported; nothing is lost
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <mutex>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include <diagnostic_msgs/DiagnosticArray.h>
+#include <geometry_msgs/PoseStamped.h>
+#include <geometry_msgs/PoseWithCovarianceStamped.h>
+#include <gtest/gtest.h>
+#include <ros/ros.h>
+#include <rosbag/bag.h>
+#include <rosbag/view.h>
+#include <sensor_msgs/Image.h>
+#include <tf2_msgs/TFMessage.h>
+
+#include "ground_texture_bow/GetInfo.h"
+#include "ground_texture_bow/LoadMap.h"
+#include "ground_texture_bow/LoopClosure.h"
+#include "ground_texture_bow/QueryCandidates.h"
+#include "ground_texture_bow/AddKeyframe.h"
+#include "ground_texture_bow/SaveMap.h"
+#include "ground_texture_bow/Status.h"
+#include "ground_texture_bow/core/geometry.h"
+#include "ground_texture_bow/core/file_util.h"
+#include "ground_texture_bow/ros/conversions.h"
+
+namespace fs = std::filesystem;
+using ground_texture_bow::Status;
+
+namespace {
+
+std::string g_data;  // the test data directory (~data parameter)
+const gtbow::ImageGeometry kGeometry{640, 480, 0.00025};
+
+struct Frame {
+  sensor_msgs::ImageConstPtr image;
+  tf2_msgs::TFMessageConstPtr tf;  // may be null (bag without TF)
+  gtbow::Pose2D truth;
+};
+
+std::vector<Frame> ReadBag(const std::string& path) {
+  rosbag::Bag bag(path, rosbag::bagmode::Read);
+  std::map<ros::Time, Frame> by_stamp;
+  for (const rosbag::MessageInstance& m : rosbag::View(bag)) {
+    if (auto img = m.instantiate<sensor_msgs::Image>()) {
+      by_stamp[img->header.stamp].image = img;
+    } else if (auto tf = m.instantiate<tf2_msgs::TFMessage>()) {
+      by_stamp[tf->transforms.at(0).header.stamp].tf = tf;
+    } else if (auto p = m.instantiate<geometry_msgs::PoseStamped>()) {
+      const auto& q = p->pose.orientation;
+      by_stamp[p->header.stamp].truth = {p->pose.position.x, p->pose.position.y,
+                                         gtbow_ros::YawOf(q.x, q.y, q.z, q.w)};
+    }
+  }
+  std::vector<Frame> out;
+  for (auto& [stamp, f] : by_stamp) out.push_back(f);
+  return out;
+}
+
+template <typename Srv>
+Srv Call(const std::string& name, Srv srv = Srv()) {
+  EXPECT_TRUE(ros::service::waitForService(name, ros::Duration(30))) << name;
+  EXPECT_TRUE(ros::service::call(name, srv)) << name;
+  return srv;
+}
+
+ground_texture_bow::GetInfo::Response Info(const std::string& node) {
+  return Call<ground_texture_bow::GetInfo>(node + "/get_info").response;
+}
+
+// Publishes each frame's TF and image at `rate` Hz, then waits until the node has dealt with
+// every image it received.
+void Replay(const std::vector<Frame>& frames, const std::string& topic, const std::string& node,
+            double rate) {
+  ros::NodeHandle nh;
+  ros::Publisher img_pub = nh.advertise<sensor_msgs::Image>(topic, 10);
+  ros::Publisher tf_pub = nh.advertise<tf2_msgs::TFMessage>("/tf", 100);
+  const ros::WallTime deadline = ros::WallTime::now() + ros::WallDuration(20);
+  while (img_pub.getNumSubscribers() == 0 && ros::WallTime::now() < deadline) ros::WallDuration(0.05).sleep();
+  ASSERT_GT(img_pub.getNumSubscribers(), 0u) << "nobody subscribes to " << topic;
+  ros::WallDuration(0.5).sleep();
+  const uint64_t before = Info(node).images_received;
+  for (const Frame& f : frames) {
+    if (f.tf) tf_pub.publish(f.tf);
+    ros::WallDuration(0.01).sleep();  // the transform arrives before the image
+    img_pub.publish(f.image);
+    ros::WallDuration(1.0 / rate).sleep();
+  }
+  const ros::WallTime end = ros::WallTime::now() + ros::WallDuration(30);
+  while (ros::WallTime::now() < end) {
+    const auto info = Info(node);
+    if (info.images_received >= before + frames.size() &&
+        info.images_processed + info.images_dropped + info.images_rejected >= info.images_received) {
+      return;
+    }
+    ros::WallDuration(0.1).sleep();
+  }
+  ADD_FAILURE() << node << " did not finish processing the replay";
+}
+
+double PositionErrorMm(const gtbow::Pose2D& a, const gtbow::Pose2D& b) {
+  return 1000.0 * std::hypot(a.x - b.x, a.y - b.y);
+}
+double HeadingErrorDeg(const gtbow::Pose2D& a, const gtbow::Pose2D& b) {
+  return std::abs(std::remainder(a.theta - b.theta, 2 * M_PI)) * 180.0 / M_PI;
+}
+
+// The query's pose from a candidate's keyframe pose and its relative pose (optical frame).
+gtbow::Pose2D Compose(const gtbow::Pose2D& keyframe, const geometry_msgs::Pose2D& optical) {
+  const double x = optical.x, y = -optical.y, th = -optical.theta;  // back to the above view
+  const double c = std::cos(keyframe.theta), s = std::sin(keyframe.theta);
+  return {keyframe.x + c * x - s * y, keyframe.y + s * x + c * y, keyframe.theta + th};
+}
+
+// ---------------------------------------------------------------------------------------------
+
+TEST(Mapping, ReplayBuildsKeyframesAndRevisitsGetTheRightOnes) {
+  ros::NodeHandle nh;
+  std::vector<ground_texture_bow::LoopClosure> closures;
+  std::mutex m;
+  ros::Subscriber sub = nh.subscribe<ground_texture_bow::LoopClosure>(
+      "/localizer/loop_closures", 100, [&](const ground_texture_bow::LoopClosureConstPtr& lc) {
+        std::lock_guard<std::mutex> lock(m);
+        closures.push_back(*lc);
+      });
+  const auto mapping = ReadBag(g_data + "/mapping.bag");
+  ASSERT_GT(mapping.size(), 20u);
+  Replay(mapping, "/camera/image_raw", "/localizer", 4.0);
+  const auto info = Info("/localizer");
+  EXPECT_EQ(info.mode, "mapping");
+  EXPECT_GE(info.database_size, mapping.size() * 3 / 4) << "keyframes";
+  EXPECT_EQ(info.images_rejected, 0u);
+
+  // Revisits on day 30: by image, verified.
+  const auto revisits = ReadBag(g_data + "/localization.bag");
+  int right = 0, accurate = 0;
+  for (const Frame& f : revisits) {
+    ground_texture_bow::QueryCandidates q;
+    q.request.image = *f.image;
+    q.request.k = 3;
+    q.request.verify = true;
+    q = Call("/localizer/query_candidates", q);
+    ASSERT_EQ(q.response.status.code, Status::OK) << q.response.status.message;
+    if (q.response.candidates.empty()) continue;
+    const auto& best = q.response.candidates[0];
+    ASSERT_TRUE(best.has_pose);  // mapped with TF
+    const gtbow::Pose2D kf{best.pose.x, best.pose.y, best.pose.theta};
+    right += gtbow::IsRelevant(f.truth, kf, kGeometry) ? 1 : 0;
+    if (best.verified) {
+      const gtbow::Pose2D est = Compose(kf, best.match_from_query);
+      accurate += PositionErrorMm(est, f.truth) <= 4.8 && HeadingErrorDeg(est, f.truth) <= 1.5;
+    }
+  }
+  std::printf("mapping: %u keyframes from %zu images; revisits: %d of %zu right, %d verified within "
+              "4.8 mm / 1.5 deg\n", info.database_size, mapping.size(), right, revisits.size(), accurate);
+  EXPECT_GE(right, static_cast<int>(revisits.size() * 9 / 10)) << right << " of " << revisits.size();
+  EXPECT_GE(accurate, static_cast<int>(revisits.size() * 9 / 10)) << accurate << " of " << revisits.size();
+
+  // By keyframe id: never itself, and the best overlaps it.
+  for (uint32_t id = 0; id < info.database_size; id += 5) {
+    ground_texture_bow::QueryCandidates q;
+    q.request.use_keyframe_id = true;
+    q.request.keyframe_id = id;
+    q.request.k = 3;
+    q = Call("/localizer/query_candidates", q);
+    ASSERT_EQ(q.response.status.code, Status::OK) << q.response.status.message;
+    for (const auto& c : q.response.candidates) EXPECT_NE(c.id, id);
+  }
+  ground_texture_bow::QueryCandidates unknown;
+  unknown.request.use_keyframe_id = true;
+  unknown.request.keyframe_id = 100000;
+  EXPECT_EQ(Call("/localizer/query_candidates", unknown).response.status.code, Status::NOT_FOUND);
+
+  // Loop closures between lawnmower rows: each relative pose agrees with the ground truth.
+  std::map<ros::Time, gtbow::Pose2D> truth;
+  for (const Frame& f : mapping) truth[f.image->header.stamp] = f.truth;
+  std::lock_guard<std::mutex> lock(m);
+  EXPECT_GE(closures.size(), 3u);
+  int consistent = 0;
+  for (const auto& lc : closures) {
+    ASSERT_EQ(lc.status, ground_texture_bow::LoopClosure::VERIFIED);
+    const gtbow::Pose2D est = Compose(truth.at(lc.match_stamp), lc.match_from_query);
+    const gtbow::Pose2D& q = truth.at(lc.query_stamp);
+    consistent += PositionErrorMm(est, q) <= 4.8 && HeadingErrorDeg(est, q) <= 1.5;
+  }
+  std::printf("loop closures: %zu, %d consistent with the ground truth\n", closures.size(), consistent);
+  EXPECT_EQ(consistent, static_cast<int>(closures.size()));
+}
+
+// ---------------------------------------------------------------------------------------------
+
+TEST(SaveLoad, AFreshNodeLoadsTheMapAnswersAlikeAndLocalizesALaterDay) {
+  ros::NodeHandle nh;
+  const auto mapping = ReadBag(g_data + "/mapping.bag");
+  Replay(mapping, "/map_camera/image_raw", "/mapper", 4.0);
+  const fs::path dir = fs::temp_directory_path() / ("gtbow_rostest_" + std::to_string(::getpid()));
+  fs::create_directories(dir);
+  const std::string map_path = (dir / "map.gtmap").string();
+  ground_texture_bow::SaveMap save;
+  save.request.path = map_path;
+  save = Call("/mapper/save_map", save);
+  ASSERT_EQ(save.response.status.code, Status::OK) << save.response.status.message;
+  ground_texture_bow::LoadMap load;
+  load.request.path = map_path;
+  load = Call("/localizer/load_map", load);
+  ASSERT_EQ(load.response.status.code, Status::OK) << load.response.status.message;
+  EXPECT_EQ(load.response.keyframes, Info("/mapper").database_size);
+  const std::string bytes = gtbow::ReadFile(map_path);
+
+  // The same answers from both nodes.
+  const auto later = ReadBag(g_data + "/localization.bag");
+  for (const Frame& f : later) {
+    ground_texture_bow::QueryCandidates q;
+    q.request.image = *f.image;
+    q.request.k = 5;
+    q.request.verify = true;
+    const auto a = Call("/mapper/query_candidates", q).response;
+    const auto b = Call("/localizer/query_candidates", q).response;
+    ASSERT_EQ(a.candidates.size(), b.candidates.size());
+    for (size_t k = 0; k < a.candidates.size(); ++k) {
+      EXPECT_EQ(a.candidates[k].id, b.candidates[k].id);
+      EXPECT_EQ(a.candidates[k].score, b.candidates[k].score);
+      EXPECT_EQ(a.candidates[k].match_from_query.x, b.candidates[k].match_from_query.x);
+    }
+  }
+
+  // Localization mode: a day-30 run without TF gets fixes within the protocol's tolerance.
+  std::map<ros::Time, gtbow::Pose2D> fixes;
+  std::mutex m;
+  ros::Subscriber sub = nh.subscribe<geometry_msgs::PoseWithCovarianceStamped>(
+      "/localizer/pose", 100, [&](const geometry_msgs::PoseWithCovarianceStampedConstPtr& p) {
+        std::lock_guard<std::mutex> lock(m);
+        const auto& q = p->pose.pose.orientation;
+        EXPECT_EQ(p->header.frame_id, "map");
+        EXPECT_GT(p->pose.covariance[0], 0.0);
+        fixes[p->header.stamp] = {p->pose.pose.position.x, p->pose.pose.position.y,
+                                  gtbow_ros::YawOf(q.x, q.y, q.z, q.w)};
+      });
+  ros::WallDuration(0.5).sleep();
+  Replay(later, "/loc_camera/image_raw", "/localizer", 4.0);
+  ros::WallDuration(0.5).sleep();
+  int good = 0;
+  {
+    std::lock_guard<std::mutex> lock(m);
+    for (const Frame& f : later) {
+      auto it = fixes.find(f.image->header.stamp);
+      if (it == fixes.end()) continue;
+      good += PositionErrorMm(it->second, f.truth) <= 4.8 && HeadingErrorDeg(it->second, f.truth) <= 1.5;
+    }
+  }
+  std::printf("localization: %zu fixes for %zu images, %d within 4.8 mm / 1.5 deg\n", fixes.size(),
+              later.size(), good);
+  EXPECT_GE(good, static_cast<int>(later.size() * 9 / 10)) << good << " of " << later.size();
+  const auto info = Info("/localizer");
+  EXPECT_EQ(info.mode, "localization");
+  EXPECT_EQ(info.fixes, fixes.size());
+  EXPECT_TRUE(info.localized);
+  // Localization mode is read-only: no insertion, and the map file is untouched.
+  ground_texture_bow::AddKeyframe add;
+  add.request.image = *later[0].image;
+  EXPECT_EQ(Call("/localizer/add_keyframe", add).response.status.code, Status::FAILED_PRECONDITION);
+  EXPECT_EQ(info.database_size, load.response.keyframes);
+  EXPECT_EQ(gtbow::ReadFile(map_path), bytes);
+  fs::remove_all(dir);
+}
+
+// ---------------------------------------------------------------------------------------------
+
+TEST(BadInput, EachKindIsCountedReportedAndLosesNothing) {
+  ros::NodeHandle nh;
+  diagnostic_msgs::DiagnosticStatus last;
+  std::mutex m;
+  ros::Subscriber sub = nh.subscribe<diagnostic_msgs::DiagnosticArray>(
+      "/diagnostics", 10, [&](const diagnostic_msgs::DiagnosticArrayConstPtr& d) {
+        std::lock_guard<std::mutex> lock(m);
+        for (const auto& s : d->status) {
+          if (s.name.find("localizer") != std::string::npos) last = s;
+        }
+      });
+  // A small map to protect.
+  auto mapping = ReadBag(g_data + "/mapping.bag");
+  mapping.resize(6);
+  Replay(mapping, "/camera/image_raw", "/localizer", 4.0);
+  const uint32_t keyframes = Info("/localizer").database_size;
+  ASSERT_GT(keyframes, 0u);
+  const fs::path dir = fs::temp_directory_path() / ("gtbow_badinput_" + std::to_string(::getpid()));
+  fs::create_directories(dir);
+  const std::string good_path = (dir / "map.gtmap").string();
+  ground_texture_bow::SaveMap save;
+  save.request.path = good_path;
+  ASSERT_EQ(Call("/localizer/save_map", save).response.status.code, Status::OK);
+  const std::string good_bytes = gtbow::ReadFile(good_path);
+
+  // Wrong encoding, empty image, and an image whose frame has no transform.
+  std::vector<Frame> bad(3, mapping[0]);
+  auto wrong = boost::make_shared<sensor_msgs::Image>(*mapping[0].image);
+  wrong->encoding = "32FC1";
+  wrong->header.stamp += ros::Duration(100);
+  auto empty = boost::make_shared<sensor_msgs::Image>(*mapping[0].image);
+  empty->width = empty->height = 0;
+  empty->data.clear();
+  empty->header.stamp += ros::Duration(101);
+  auto no_tf = boost::make_shared<sensor_msgs::Image>(*mapping[0].image);
+  no_tf->header.frame_id = "unknown_camera";
+  no_tf->header.stamp += ros::Duration(102);
+  bad[0].image = wrong;
+  bad[1].image = empty;
+  bad[2].image = no_tf;
+  for (auto& f : bad) f.tf = nullptr;
+  Replay(bad, "/camera/image_raw", "/localizer", 4.0);
+  auto info = Info("/localizer");
+  EXPECT_EQ(info.images_rejected, 2u);  // the encoding and the empty image
+
+  // A map path that cannot be written, and a corrupt map: errors, nothing lost.
+  ground_texture_bow::SaveMap unwritable;
+  unwritable.request.path = "/proc/gtbow_no_such_dir/map.gtmap";
+  unwritable = Call("/localizer/save_map", unwritable);
+  EXPECT_EQ(unwritable.response.status.code, Status::INVALID_ARGUMENT);
+  EXPECT_NE(unwritable.response.status.message.find("/proc/gtbow_no_such_dir"), std::string::npos)
+      << unwritable.response.status.message;
+  std::string corrupt = good_bytes;
+  corrupt[corrupt.size() / 2] ^= 0x10;
+  gtbow::WriteFileAtomic(dir / "corrupt.gtmap", corrupt);
+  ground_texture_bow::LoadMap load;
+  load.request.path = (dir / "corrupt.gtmap").string();
+  load = Call("/localizer/load_map", load);
+  EXPECT_EQ(load.response.status.code, Status::INVALID_ARGUMENT);
+  EXPECT_NE(load.response.status.message.find("corrupt.gtmap"), std::string::npos)
+      << load.response.status.message;
+  // A bad image through a service.
+  ground_texture_bow::QueryCandidates q;
+  q.request.image = *wrong;
+  q = Call("/localizer/query_candidates", q);
+  EXPECT_EQ(q.response.status.code, Status::INVALID_ARGUMENT);
+  EXPECT_NE(q.response.status.message.find("32FC1"), std::string::npos);
+
+  // Still alive, map intact in memory and on disk, counters and diagnostics tell the story.
+  info = Info("/localizer");
+  EXPECT_EQ(info.database_size, keyframes);
+  EXPECT_GE(info.images_rejected, 5u);  // 2 images + save + load + query
+  EXPECT_EQ(gtbow::ReadFile(good_path), good_bytes);
+  const ros::WallTime end = ros::WallTime::now() + ros::WallDuration(5);
+  bool seen = false;
+  while (!seen && ros::WallTime::now() < end) {
+    ros::WallDuration(0.2).sleep();
+    std::lock_guard<std::mutex> lock(m);
+    for (const auto& kv : last.values) {
+      if (kv.key == "missing transforms" && std::stoi(kv.value) >= 1) {
+        for (const auto& kv2 : last.values) {
+          if (kv2.key == "rejected inputs" && std::stoi(kv2.value) >= 5) seen = true;
+        }
+      }
+    }
+  }
+  EXPECT_TRUE(seen) << "diagnostics do not report the rejected inputs and the missing transform";
+  {
+    std::lock_guard<std::mutex> lock(m);
+    EXPECT_EQ(last.level, diagnostic_msgs::DiagnosticStatus::WARN);
+  }
+  fs::remove_all(dir);
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  ::testing::InitGoogleTest(&argc, argv);
+  ros::init(argc, argv, "localizer_rostest");
+  ros::NodeHandle pnh("~");
+  if (!pnh.getParam("data", g_data)) {
+    std::fprintf(stderr, "localizer_rostest: the ~data parameter (test data directory) is not set\n");
+    return 2;
+  }
+  ros::AsyncSpinner spinner(2);
+  spinner.start();
+  return RUN_ALL_TESTS();
+}
