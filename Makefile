@@ -32,12 +32,13 @@ build: deps ws-src
 	@$(CATKIN) > $(CURDIR)/build/build.log 2>&1 || { tail -n 60 $(CURDIR)/build/build.log; echo "build failed: full log in build/build.log"; exit 1; }
 	@echo "built: $(GTBOW)"
 
-# The built-in default: a small synthetic asphalt floor, then retrieval and global
-# localization of its day-0 to day-180 queries with the high-accuracy preset.
+# The built-in default, the whole ROS story headless: render a small synthetic floor, train a
+# vocabulary, replay a mapping bag through the nodelet, save the map, then a fresh nodelet in
+# localization mode loads it and localizes a day-180 bag; prints the success rate against the
+# ground truth (scripts/ros_demo.sh). Then the offline evaluation of the same floor.
 demo: build
-	@$(GTBOW) synth --out build/demo_floor --area 0.5 0.4 --train 40 --queries 20 --force
-	@echo "Example images: build/demo_floor/images/database_000000.png, build/demo_floor/images/query_day180_000000.png"
-	@$(GTBOW) eval --dataset build/demo_floor --words 3000 --out build/demo_eval \
+	@bash scripts/ros_demo.sh "$(WS)" build/demo
+	@$(GTBOW) eval --dataset build/demo/floor --words 3000 --out build/demo/eval \
 	  --cache build/cache --timing-queries 20 -q
 
 test: deps ws-src

@@ -13,6 +13,7 @@ PACKAGES=(
   libnodeletlib-dev libnodelet-dev ros-sensor-msgs ros-geometry-msgs ros-message-generation
   python3-rosbag python3-roslaunch python3-rosmaster
   libdiagnostic-updater-dev libvisualization-msgs-dev libnodeletlib-tools
+  python3-geometry-msgs python3-sensor-msgs python3-std-msgs python3-tf2-msgs
   # core libraries
   libopencv-dev libflann-dev liblz4-dev libeigen3-dev libyaml-cpp-dev libcli11-dev
   # tests and plots
