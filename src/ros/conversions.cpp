@@ -4,6 +4,7 @@
 #include <stdexcept>
 
 #include <cv_bridge/cv_bridge.h>
+#include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 #include <sensor_msgs/image_encodings.h>
 
@@ -57,6 +58,25 @@ cv::Mat ToFloorImage(const sensor_msgs::Image& msg) {
   }
   cv::Mat flipped;
   cv::flip(gray, flipped, 0);  // optical frame -> floor seen from above (always a new buffer)
+  return flipped;
+}
+
+cv::Mat ToFloorImage(const sensor_msgs::CompressedImage& msg) {
+  if (msg.data.empty()) throw std::invalid_argument("empty compressed image");
+  const cv::Mat buf(1, static_cast<int>(msg.data.size()), CV_8U,
+                    const_cast<uint8_t*>(msg.data.data()));
+  cv::Mat gray;
+  try {
+    gray = cv::imdecode(buf, cv::IMREAD_GRAYSCALE);
+  } catch (const cv::Exception&) {
+    gray.release();
+  }
+  if (gray.empty()) {
+    throw std::invalid_argument("cannot decode the compressed image (format '" + msg.format + "', " +
+                                std::to_string(msg.data.size()) + " bytes)");
+  }
+  cv::Mat flipped;
+  cv::flip(gray, flipped, 0);
   return flipped;
 }
 

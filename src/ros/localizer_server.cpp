@@ -41,6 +41,7 @@ void ServerOptions::Check() const {
   need(!vocabulary.empty() || !map.empty(), "~vocabulary (or ~map) must be set");
   need(!preset.empty(), "~preset must be set");
   need(!map_frame.empty(), "~map_frame must not be empty");
+  need(transport == "raw" || transport == "compressed", "~transport must be raw or compressed");
   need(meters_per_pixel > 0 && std::isfinite(meters_per_pixel), "~meters_per_pixel must be > 0");
   need(tf_timeout >= 0, "~tf_timeout must be >= 0");
   need(keyframe_min_distance >= 0, "~keyframe_min_distance must be >= 0");
@@ -64,6 +65,7 @@ ServerOptions ReadOptions(const ros::NodeHandle& pnh) {
   pnh.param("map_frame", o.map_frame, o.map_frame);
   pnh.param("odom_frame", o.odom_frame, o.odom_frame);
   pnh.param("camera_frame", o.camera_frame, o.camera_frame);
+  pnh.param("transport", o.transport, o.transport);
   pnh.param("meters_per_pixel", o.meters_per_pixel, o.meters_per_pixel);
   pnh.param("use_tf", o.use_tf, o.use_tf);
   pnh.param("tf_timeout", o.tf_timeout, o.tf_timeout);
@@ -125,7 +127,13 @@ LocalizerServer::LocalizerServer(ros::NodeHandle nh, ros::NodeHandle pnh,
 
   worker_ = std::thread([this] { WorkerLoop(); });
   // The subscription goes last: callbacks may start at once.
-  image_sub_ = it_.subscribe("image", 2, &LocalizerServer::ImageCallback, this);
+  if (options_.transport == "compressed") {
+    // Decoded here with OpenCV: Debian ships no compressed image_transport plugin.
+    compressed_sub_ = nh_.subscribe(nh_.resolveName("image") + "/compressed", 2,
+                                    &LocalizerServer::CompressedCallback, this);
+  } else {
+    image_sub_ = it_.subscribe("image", 2, &LocalizerServer::ImageCallback, this);
+  }
   ROS_INFO("ground_texture_bow: %s mode, %zu keyframes, vocabulary %s (%u words), preset %s",
            ModeName(mode_).c_str(), localizer_->size(), vocab_path.c_str(),
            localizer_->vocabulary().size(), options_.preset.c_str());
@@ -133,6 +141,7 @@ LocalizerServer::LocalizerServer(ros::NodeHandle nh, ros::NodeHandle pnh,
 
 LocalizerServer::~LocalizerServer() {
   image_sub_.shutdown();
+  compressed_sub_.shutdown();
   {
     std::lock_guard<std::mutex> lock(slot_mutex_);
     stop_ = true;
@@ -151,6 +160,18 @@ void LocalizerServer::Reject(const std::string& what) {
 }
 
 void LocalizerServer::ImageCallback(const sensor_msgs::ImageConstPtr& msg) {
+  Pending p;
+  p.raw = msg;
+  Enqueue(std::move(p));
+}
+
+void LocalizerServer::CompressedCallback(const sensor_msgs::CompressedImageConstPtr& msg) {
+  Pending p;
+  p.compressed = msg;
+  Enqueue(std::move(p));
+}
+
+void LocalizerServer::Enqueue(Pending p) {
   received_++;
   {
     std::lock_guard<std::mutex> lock(state_mutex_);
@@ -164,24 +185,25 @@ void LocalizerServer::ImageCallback(const sensor_msgs::ImageConstPtr& msg) {
   {
     std::lock_guard<std::mutex> lock(slot_mutex_);
     if (pending_) dropped_++;  // the waiting image is replaced by the newer one
-    pending_ = msg;
+    pending_ = std::move(p);
   }
   slot_cv_.notify_one();
 }
 
 void LocalizerServer::WorkerLoop() {
   while (true) {
-    sensor_msgs::ImageConstPtr msg;
+    Pending msg;
     {
       std::unique_lock<std::mutex> lock(slot_mutex_);
-      slot_cv_.wait(lock, [this] { return stop_ || pending_; });
+      slot_cv_.wait(lock, [this] { return stop_ || static_cast<bool>(pending_); });
       if (stop_) return;
-      msg.swap(pending_);
+      msg = std::move(pending_);
+      pending_ = Pending();
     }
     try {
       ProcessImage(msg);
     } catch (const std::exception& e) {  // never let an image take the manager down
-      Reject(std::string("image at ") + std::to_string(msg->header.stamp.toSec()) + ": " + e.what());
+      Reject(std::string("image at ") + std::to_string(msg.header().stamp.toSec()) + ": " + e.what());
     }
   }
 }
@@ -223,15 +245,15 @@ bool LocalizerServer::IsKeyframe(const std::optional<gtbow::Pose2D>& pose) {
   return take;
 }
 
-void LocalizerServer::ProcessImage(const sensor_msgs::ImageConstPtr& msg) {
+void LocalizerServer::ProcessImage(const Pending& msg) {
   const auto t0 = std::chrono::steady_clock::now();
-  std_msgs::Header header = msg->header;
+  std_msgs::Header header = msg.header();
   if (!options_.camera_frame.empty()) header.frame_id = options_.camera_frame;
   if (header.stamp.isZero()) throw std::invalid_argument("zero stamp");
   if (header.frame_id.empty() && options_.use_tf) {
     throw std::invalid_argument("no frame_id in the image header and ~camera_frame is not set");
   }
-  const cv::Mat floor_image = ToFloorImage(*msg);
+  const cv::Mat floor_image = msg.raw ? ToFloorImage(*msg.raw) : ToFloorImage(*msg.compressed);
   const Mode mode = mode_.load();
   std::optional<gtbow::Pose2D> pose;
   if (options_.use_tf && mode == Mode::kMapping) {
@@ -248,7 +270,10 @@ void LocalizerServer::ProcessImage(const sensor_msgs::ImageConstPtr& msg) {
     }
   } else {
     const uint32_t n = static_cast<uint32_t>(localizer_->size());
-    const uint32_t recent = static_cast<uint32_t>(options_.exclude_recent);
+    // In mapping mode the newest keyframes are the robot's own recent past; in external mode
+    // the backend inserts keyframes and filters candidates itself.
+    const uint32_t recent =
+        mode == Mode::kMapping ? static_cast<uint32_t>(options_.exclude_recent) : 0;
     const auto cands = localizer_->Query(img, static_cast<size_t>(options_.candidates), true,
                                          n > recent ? n - recent : 0, n);
     uint32_t query_id = ground_texture_bow::CandidateList::NO_ID;

@@ -4,6 +4,7 @@
 #include <cmath>
 
 #include <gtest/gtest.h>
+#include <opencv2/imgcodecs.hpp>
 #include <sensor_msgs/image_encodings.h>
 
 namespace gtbow_ros {
@@ -67,6 +68,29 @@ TEST(Conversions, BadImagesAreRejectedWithTheReason) {
   sensor_msgs::Image short_data = MakeImage("mono8", 4, 3, 1);
   short_data.data.resize(5);
   expect_reason(short_data, "too small");
+}
+
+TEST(Conversions, CompressedImagesAreDecodedAndFlipped) {
+  cv::Mat img(3, 4, CV_8UC1);
+  for (int v = 0; v < 3; ++v) img.row(v).setTo(v * 10);
+  sensor_msgs::CompressedImage m;
+  m.format = "png";
+  std::vector<uint8_t> buf;
+  cv::imencode(".png", img, buf);
+  m.data = buf;
+  const cv::Mat out = ToFloorImage(m);
+  EXPECT_EQ(out.at<uint8_t>(0, 0), 20);
+  EXPECT_EQ(out.at<uint8_t>(2, 3), 0);
+  sensor_msgs::CompressedImage bad;
+  bad.format = "jpeg";
+  EXPECT_THROW(ToFloorImage(bad), std::invalid_argument);  // empty
+  bad.data = {1, 2, 3, 4, 5};
+  try {
+    ToFloorImage(bad);
+    ADD_FAILURE() << "decoded garbage";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("cannot decode"), std::string::npos) << e.what();
+  }
 }
 
 TEST(Conversions, FootprintsRoundTripThroughTransforms) {

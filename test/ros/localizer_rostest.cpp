@@ -5,6 +5,7 @@
 //   localization.test  SaveLoad.*    a saved map loads into a fresh node, which answers the same
 //                                    and localizes a later-day run within 4.8 mm and 1.5 deg
 //   bad_input.test     BadInput.*    bad input is counted and reported; nothing is lost
+//   services.test      Services.*    external mode, compressed images, the map services
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
@@ -30,6 +31,13 @@
 #include "ground_texture_bow/LoopClosure.h"
 #include "ground_texture_bow/QueryCandidates.h"
 #include "ground_texture_bow/AddKeyframe.h"
+#include "ground_texture_bow/CandidateList.h"
+#include "ground_texture_bow/Localize.h"
+#include "ground_texture_bow/Reset.h"
+#include "ground_texture_bow/SetMode.h"
+#include <cv_bridge/cv_bridge.h>
+#include <opencv2/imgcodecs.hpp>
+#include <sensor_msgs/CompressedImage.h>
 #include "ground_texture_bow/SaveMap.h"
 #include "ground_texture_bow/Status.h"
 #include "ground_texture_bow/core/geometry.h"
@@ -370,6 +378,111 @@ TEST(BadInput, EachKindIsCountedReportedAndLosesNothing) {
     EXPECT_EQ(last.level, diagnostic_msgs::DiagnosticStatus::WARN);
   }
   fs::remove_all(dir);
+}
+
+// ---------------------------------------------------------------------------------------------
+
+sensor_msgs::CompressedImage Compress(const sensor_msgs::Image& img) {
+  sensor_msgs::CompressedImage c;
+  c.header = img.header;
+  c.format = "png";
+  std::vector<uint8_t> buf;
+  cv::imencode(".png", cv_bridge::toCvCopy(img, "mono8")->image, buf);
+  c.data = buf;
+  return c;
+}
+
+TEST(Services, ExternalModeCompressedImagesAndMapServices) {
+  ros::NodeHandle nh;
+  std::vector<ground_texture_bow::CandidateList> lists;
+  std::mutex m;
+  ros::Subscriber sub = nh.subscribe<ground_texture_bow::CandidateList>(
+      "/localizer/candidates", 100, [&](const ground_texture_bow::CandidateListConstPtr& l) {
+        std::lock_guard<std::mutex> lock(m);
+        lists.push_back(*l);
+      });
+  ros::Publisher pub = nh.advertise<sensor_msgs::CompressedImage>("/camera/image_raw/compressed", 10);
+  const auto mapping = ReadBag(g_data + "/mapping.bag");
+  EXPECT_EQ(Info("/localizer").mode, "external");
+
+  // The SLAM backend inserts keyframes (with poses) through the service.
+  for (size_t i = 0; i < 12; ++i) {
+    ground_texture_bow::AddKeyframe add;
+    add.request.image = *mapping[i].image;
+    add.request.has_pose = true;
+    add.request.pose = gtbow_ros::ToPose2DMsg(mapping[i].truth);
+    add = Call("/localizer/add_keyframe", add);
+    ASSERT_EQ(add.response.status.code, Status::OK) << add.response.status.message;
+    EXPECT_EQ(add.response.id, i);
+  }
+  ground_texture_bow::AddKeyframe nan_pose;
+  nan_pose.request.image = *mapping[0].image;
+  nan_pose.request.has_pose = true;
+  nan_pose.request.pose.x = NAN;
+  EXPECT_EQ(Call("/localizer/add_keyframe", nan_pose).response.status.code, Status::INVALID_ARGUMENT);
+
+  // Compressed images in: ranked candidates out, nothing inserted by the node itself.
+  const ros::WallTime deadline = ros::WallTime::now() + ros::WallDuration(20);
+  while (pub.getNumSubscribers() == 0 && ros::WallTime::now() < deadline) ros::WallDuration(0.05).sleep();
+  ASSERT_GT(pub.getNumSubscribers(), 0u);
+  for (size_t i : {3u, 7u}) {
+    pub.publish(Compress(*mapping[i].image));
+    ros::WallDuration(0.5).sleep();
+  }
+  sensor_msgs::CompressedImage garbage;
+  garbage.header = mapping[0].image->header;
+  garbage.format = "jpeg";
+  garbage.data = {1, 2, 3};
+  pub.publish(garbage);
+  const ros::WallTime end = ros::WallTime::now() + ros::WallDuration(10);
+  while (ros::WallTime::now() < end) {
+    {
+      std::lock_guard<std::mutex> lock(m);
+      if (lists.size() >= 2 && Info("/localizer").images_rejected >= 1) break;
+    }
+    ros::WallDuration(0.1).sleep();
+  }
+  {
+    std::lock_guard<std::mutex> lock(m);
+    ASSERT_EQ(lists.size(), 2u);
+    ASSERT_FALSE(lists[0].candidates.empty());
+    EXPECT_EQ(lists[0].candidates[0].id, 3u);  // the same image was keyframe 3
+    EXPECT_EQ(lists[1].candidates[0].id, 7u);
+    EXPECT_EQ(lists[0].query_id, ground_texture_bow::CandidateList::NO_ID);
+  }
+  auto info = Info("/localizer");
+  EXPECT_EQ(info.database_size, 12u);
+  EXPECT_EQ(info.images_rejected, 2u);  // the NaN pose and the undecodable image
+
+  // ~localize against the posed keyframes.
+  ground_texture_bow::Localize loc;
+  loc.request.image = *mapping[5].image;
+  loc = Call("/localizer/localize", loc);
+  ASSERT_EQ(loc.response.status.code, Status::OK) << loc.response.status.message;
+  ASSERT_TRUE(loc.response.localized);
+  const auto& p = loc.response.pose.pose.pose;
+  const gtbow::Pose2D fix{p.position.x, p.position.y,
+                          gtbow_ros::YawOf(p.orientation.x, p.orientation.y, p.orientation.z, p.orientation.w)};
+  EXPECT_LT(PositionErrorMm(fix, mapping[5].truth), 4.8);
+  EXPECT_LT(HeadingErrorDeg(fix, mapping[5].truth), 1.5);
+
+  // Modes: a bad name is refused; localization is read-only; reset in external mode clears.
+  ground_texture_bow::SetMode mode;
+  mode.request.mode = "surveying";
+  EXPECT_EQ(Call("/localizer/set_mode", mode).response.status.code, Status::INVALID_ARGUMENT);
+  mode.request.mode = "localization";
+  mode = Call("/localizer/set_mode", mode);
+  EXPECT_EQ(mode.response.previous_mode, "external");
+  ground_texture_bow::AddKeyframe add;
+  add.request.image = *mapping[20].image;
+  EXPECT_EQ(Call("/localizer/add_keyframe", add).response.status.code, Status::FAILED_PRECONDITION);
+  EXPECT_EQ(Call<ground_texture_bow::Reset>("/localizer/reset").response.status.code,
+            Status::FAILED_PRECONDITION);
+  EXPECT_EQ(Info("/localizer").database_size, 12u);
+  mode.request.mode = "external";
+  Call("/localizer/set_mode", mode);
+  EXPECT_EQ(Call<ground_texture_bow::Reset>("/localizer/reset").response.status.code, Status::OK);
+  EXPECT_EQ(Info("/localizer").database_size, 0u);
 }
 
 }  // namespace

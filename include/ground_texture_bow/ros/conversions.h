@@ -18,6 +18,7 @@
 #include <geometry_msgs/Transform.h>
 #include <opencv2/core.hpp>
 #include <ros/time.h>
+#include <sensor_msgs/CompressedImage.h>
 #include <sensor_msgs/Image.h>
 
 #include "ground_texture_bow/Candidate.h"
@@ -32,6 +33,9 @@ namespace gtbow_ros {
 // std::invalid_argument naming the problem: unsupported encoding, empty image, inconsistent
 // step or data size.
 cv::Mat ToFloorImage(const sensor_msgs::Image& msg);
+// The same for a compressed image (sensor_msgs/CompressedImage: JPEG or PNG, any channel count),
+// decoded with OpenCV. Throws std::invalid_argument when it is empty or cannot be decoded.
+cv::Mat ToFloorImage(const sensor_msgs::CompressedImage& msg);
 
 // The planar footprint of a downward camera from its pose in the map (e.g. a TF lookup of
 // map -> camera optical frame). Throws std::invalid_argument for non-finite values or a camera

@@ -24,6 +24,7 @@
 #include <diagnostic_updater/diagnostic_updater.h>
 #include <image_transport/image_transport.h>
 #include <ros/ros.h>
+#include <sensor_msgs/CompressedImage.h>
 #include <tf2_ros/buffer.h>
 #include <tf2_ros/transform_broadcaster.h>
 #include <tf2_ros/transform_listener.h>
@@ -53,6 +54,7 @@ struct ServerOptions {
   std::string map_frame = "map";
   std::string odom_frame = "odom";
   std::string camera_frame;            // overrides the image header's frame_id when set
+  std::string transport = "raw";       // raw (image_transport) or compressed (<image>/compressed)
   double meters_per_pixel = 0.00025;   // metres per pixel on the floor
   bool use_tf = true;                  // look up the camera pose in map_frame
   double tf_timeout = 0.05;            // seconds to wait for a transform
@@ -83,16 +85,23 @@ class LocalizerServer {
   LocalizerServer& operator=(const LocalizerServer&) = delete;
 
  private:
-  struct Pending {
-    sensor_msgs::ImageConstPtr image;
-  };
   struct Edge {
     uint32_t from, to;
   };
 
+  // A received image, raw or compressed (exactly one is set).
+  struct Pending {
+    sensor_msgs::ImageConstPtr raw;
+    sensor_msgs::CompressedImageConstPtr compressed;
+    explicit operator bool() const { return raw || compressed; }
+    const std_msgs::Header& header() const { return raw ? raw->header : compressed->header; }
+  };
+
   void ImageCallback(const sensor_msgs::ImageConstPtr& msg);
+  void CompressedCallback(const sensor_msgs::CompressedImageConstPtr& msg);
+  void Enqueue(Pending p);
   void WorkerLoop();
-  void ProcessImage(const sensor_msgs::ImageConstPtr& msg);
+  void ProcessImage(const Pending& msg);
   std::optional<gtbow::Pose2D> LookupFootprint(const std::string& frame, const ros::Time& stamp,
                                                const std::string& target, bool warn);
   bool IsKeyframe(const std::optional<gtbow::Pose2D>& pose);
@@ -126,6 +135,7 @@ class LocalizerServer {
   tf2_ros::TransformBroadcaster tf_broadcaster_;
   image_transport::ImageTransport it_;
   image_transport::Subscriber image_sub_;
+  ros::Subscriber compressed_sub_;  // transport: compressed (Debian has no compressed plugin)
   image_transport::Publisher debug_pub_;
   ros::Publisher pose_pub_, loop_pub_, candidates_pub_, markers_pub_;
   std::vector<ros::ServiceServer> services_;
@@ -141,7 +151,7 @@ class LocalizerServer {
 
   std::mutex slot_mutex_;
   std::condition_variable slot_cv_;
-  sensor_msgs::ImageConstPtr pending_;  // guarded by slot_mutex_
+  Pending pending_;                     // guarded by slot_mutex_
   bool stop_ = false;                   // guarded by slot_mutex_
   std::thread worker_;
 
