@@ -21,10 +21,15 @@
 #include <geometry_msgs/PoseWithCovarianceStamped.h>
 #include <gtest/gtest.h>
 #include <ros/ros.h>
+#include <ros/topic.h>
 #include <rosbag/bag.h>
 #include <rosbag/view.h>
 #include <sensor_msgs/Image.h>
 #include <tf2_msgs/TFMessage.h>
+#include <tf2_ros/buffer.h>
+#include <tf2_ros/static_transform_broadcaster.h>
+#include <tf2_ros/transform_listener.h>
+#include <visualization_msgs/MarkerArray.h>
 
 #include "ground_texture_bow/GetInfo.h"
 #include "ground_texture_bow/LoadMap.h"
@@ -143,9 +148,30 @@ TEST(Mapping, ReplayBuildsKeyframesAndRevisitsGetTheRightOnes) {
         std::lock_guard<std::mutex> lock(m);
         closures.push_back(*lc);
       });
+  // The debug image is computed only with a subscriber: subscribe for the first part.
+  std::vector<sensor_msgs::ImageConstPtr> debug;
+  ros::Subscriber debug_sub = nh.subscribe<sensor_msgs::Image>(
+      "/localizer/debug_image", 10, [&](const sensor_msgs::ImageConstPtr& img) {
+        std::lock_guard<std::mutex> lock(m);
+        debug.push_back(img);
+      });
   const auto mapping = ReadBag(g_data + "/mapping.bag");
   ASSERT_GT(mapping.size(), 20u);
-  Replay(mapping, "/camera/image_raw", "/localizer", 4.0);
+  Replay(std::vector<Frame>(mapping.begin(), mapping.begin() + 5), "/camera/image_raw",
+         "/localizer", 4.0);
+  debug_sub.shutdown();
+  Replay(std::vector<Frame>(mapping.begin() + 5, mapping.end()), "/camera/image_raw",
+         "/localizer", 4.0);
+  {
+    std::lock_guard<std::mutex> lock(m);
+    EXPECT_GE(debug.size(), 3u);
+    EXPECT_LE(debug.size(), 6u);
+    if (!debug.empty()) {
+      EXPECT_EQ(debug[0]->width, mapping[0].image->width);
+      EXPECT_EQ(debug[0]->encoding, "bgr8");
+      EXPECT_EQ(debug[0]->header.stamp, mapping[0].image->header.stamp);
+    }
+  }
   const auto info = Info("/localizer");
   EXPECT_EQ(info.mode, "mapping");
   EXPECT_GE(info.database_size, mapping.size() * 3 / 4) << "keyframes";
@@ -205,6 +231,15 @@ TEST(Mapping, ReplayBuildsKeyframesAndRevisitsGetTheRightOnes) {
   }
   std::printf("loop closures: %zu, %d consistent with the ground truth\n", closures.size(), consistent);
   EXPECT_EQ(consistent, static_cast<int>(closures.size()));
+
+  // RViz markers: one footprint (4 segments) per posed keyframe, one edge per loop closure.
+  visualization_msgs::MarkerArrayConstPtr markers =
+      ros::topic::waitForMessage<visualization_msgs::MarkerArray>("/localizer/markers", ros::Duration(5));
+  ASSERT_TRUE(markers != nullptr);
+  ASSERT_EQ(markers->markers.size(), 2u);
+  EXPECT_EQ(markers->markers[0].header.frame_id, "map");
+  EXPECT_EQ(markers->markers[0].points.size(), 8u * info.database_size);
+  EXPECT_EQ(markers->markers[1].points.size(), 2u * closures.size());
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -244,6 +279,25 @@ TEST(SaveLoad, AFreshNodeLoadsTheMapAnswersAlikeAndLocalizesALaterDay) {
     }
   }
 
+  // The robot's odometry frame: odom -> camera is static here, so that map -> odom from each fix
+  // can be checked through TF (publish_tf is on for this node).
+  tf2_ros::StaticTransformBroadcaster static_tf;
+  geometry_msgs::TransformStamped odom_cam;
+  odom_cam.header.stamp = ros::Time(1.0);
+  odom_cam.header.frame_id = "odom";
+  // Another camera frame than the mapping run's (whose TF made it a child of map).
+  odom_cam.child_frame_id = "robot2_camera_optical";
+  std::vector<Frame> later_robot2 = later;
+  for (Frame& f : later_robot2) {
+    auto img = boost::make_shared<sensor_msgs::Image>(*f.image);
+    img->header.frame_id = odom_cam.child_frame_id;
+    f.image = img;
+  }
+  odom_cam.transform = gtbow_ros::TransformFromFootprint({0.1, -0.2, 0.5}, 0.2);
+  static_tf.sendTransform(odom_cam);
+  tf2_ros::Buffer tf_buffer;
+  tf2_ros::TransformListener tf_listener(tf_buffer);
+
   // Localization mode: a day-30 run without TF gets fixes within the protocol's tolerance.
   std::map<ros::Time, gtbow::Pose2D> fixes;
   std::mutex m;
@@ -257,7 +311,7 @@ TEST(SaveLoad, AFreshNodeLoadsTheMapAnswersAlikeAndLocalizesALaterDay) {
                                   gtbow_ros::YawOf(q.x, q.y, q.z, q.w)};
       });
   ros::WallDuration(0.5).sleep();
-  Replay(later, "/loc_camera/image_raw", "/localizer", 4.0);
+  Replay(later_robot2, "/loc_camera/image_raw", "/localizer", 4.0);
   ros::WallDuration(0.5).sleep();
   int good = 0;
   {
@@ -271,6 +325,16 @@ TEST(SaveLoad, AFreshNodeLoadsTheMapAnswersAlikeAndLocalizesALaterDay) {
   std::printf("localization: %zu fixes for %zu images, %d within 4.8 mm / 1.5 deg\n", fixes.size(),
               later.size(), good);
   EXPECT_GE(good, static_cast<int>(later.size() * 9 / 10)) << good << " of " << later.size();
+  // map -> odom -> camera reproduces the last fix.
+  {
+    std::lock_guard<std::mutex> lock(m);
+    ASSERT_FALSE(fixes.empty());
+    const auto& [stamp, fix] = *fixes.rbegin();
+    const auto t = tf_buffer.lookupTransform("map", odom_cam.child_frame_id, stamp, ros::Duration(2));
+    const gtbow::Pose2D through_tf = gtbow_ros::FootprintFromTransform(t.transform);
+    EXPECT_LT(PositionErrorMm(through_tf, fix), 0.01);
+    EXPECT_LT(HeadingErrorDeg(through_tf, fix), 0.01);
+  }
   const auto info = Info("/localizer");
   EXPECT_EQ(info.mode, "localization");
   EXPECT_EQ(info.fixes, fixes.size());
