@@ -150,8 +150,8 @@ LocalizerServer::~LocalizerServer() {
   if (worker_.joinable()) worker_.join();
 }
 
-void LocalizerServer::Reject(const std::string& what) {
-  rejected_++;
+void LocalizerServer::Reject(const std::string& what, bool image) {
+  (image ? rejected_ : rejected_requests_)++;
   {
     std::lock_guard<std::mutex> lock(state_mutex_);
     last_error_ = what;
@@ -203,7 +203,8 @@ void LocalizerServer::WorkerLoop() {
     try {
       ProcessImage(msg);
     } catch (const std::exception& e) {  // never let an image take the manager down
-      Reject(std::string("image at ") + std::to_string(msg.header().stamp.toSec()) + ": " + e.what());
+      Reject(std::string("image at ") + std::to_string(msg.header().stamp.toSec()) + ": " + e.what(),
+             true);
     }
   }
 }
@@ -421,9 +422,10 @@ void LocalizerServer::Diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat
     last_error = last_error_;
   }
   const Mode mode = mode_.load();
-  if (rejected_ > 0 || missing_tf_ > 0) {
+  if (rejected_ > 0 || rejected_requests_ > 0 || missing_tf_ > 0) {
     stat.summary(diagnostic_msgs::DiagnosticStatus::WARN,
-                 "rejected inputs: " + std::to_string(rejected_.load()) +
+                 "rejected images: " + std::to_string(rejected_.load()) + ", rejected requests: " +
+                     std::to_string(rejected_requests_.load()) +
                      ", missing transforms: " + std::to_string(missing_tf_.load()));
   } else if (mode == Mode::kLocalization && !localized) {
     stat.summary(diagnostic_msgs::DiagnosticStatus::WARN, "not localized");
@@ -437,7 +439,8 @@ void LocalizerServer::Diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat
   stat.add("images received", received_.load());
   stat.add("images processed", processed_.load());
   stat.add("images dropped", dropped_.load());
-  stat.add("rejected inputs", rejected_.load());
+  stat.add("rejected images", rejected_.load());
+  stat.add("rejected requests", rejected_requests_.load());
   stat.add("missing transforms", missing_tf_.load());
   stat.add("fixes", fixes_.load());
   stat.add("failed fixes", failed_fixes_.load());
@@ -464,7 +467,7 @@ bool LocalizerServer::QueryCandidates(ground_texture_bow::QueryCandidates::Reque
   } catch (const std::out_of_range& e) {
     res.status = MakeStatus(Status::NOT_FOUND, e.what());
   } catch (const std::invalid_argument& e) {
-    Reject(std::string("query_candidates: ") + e.what());
+    Reject(std::string("query_candidates: ") + e.what(), false);
     res.status = MakeStatus(Status::INVALID_ARGUMENT, e.what());
   } catch (const std::exception& e) {
     res.status = MakeStatus(Status::INTERNAL, e.what());
@@ -487,7 +490,7 @@ bool LocalizerServer::AddKeyframe(ground_texture_bow::AddKeyframe::Request& req,
     res.status = MakeStatus(Status::OK, "keyframe " + std::to_string(res.id) + " with " +
                                             std::to_string(img.features.size()) + " keypoints");
   } catch (const std::invalid_argument& e) {
-    Reject(std::string("add_keyframe: ") + e.what());
+    Reject(std::string("add_keyframe: ") + e.what(), false);
     res.status = MakeStatus(Status::INVALID_ARGUMENT, e.what());
   } catch (const std::exception& e) {
     res.status = MakeStatus(Status::INTERNAL, e.what());
@@ -510,7 +513,7 @@ bool LocalizerServer::LocalizeSrv(ground_texture_bow::Localize::Request& req,
       res.status = MakeStatus(Status::NOT_FOUND, fix.reason);
     }
   } catch (const std::invalid_argument& e) {
-    Reject(std::string("localize: ") + e.what());
+    Reject(std::string("localize: ") + e.what(), false);
     res.status = MakeStatus(Status::INVALID_ARGUMENT, e.what());
   } catch (const std::exception& e) {
     res.status = MakeStatus(Status::INTERNAL, e.what());
@@ -526,7 +529,7 @@ bool LocalizerServer::SaveMap(ground_texture_bow::SaveMap::Request& req,
     res.status = MakeStatus(Status::OK, "saved " + std::to_string(localizer_->size()) +
                                             " keyframes to " + req.path);
   } catch (const std::exception& e) {
-    Reject(std::string("save_map: ") + e.what());
+    Reject(std::string("save_map: ") + e.what(), false);
     res.status = MakeStatus(Status::INVALID_ARGUMENT, e.what());
   }
   return true;
@@ -546,7 +549,7 @@ bool LocalizerServer::LoadMap(ground_texture_bow::LoadMap::Request& req,
     res.status = MakeStatus(Status::OK, "loaded " + std::to_string(res.keyframes) +
                                             " keyframes from " + req.path);
   } catch (const std::exception& e) {
-    Reject(std::string("load_map: ") + e.what());
+    Reject(std::string("load_map: ") + e.what(), false);
     res.status = MakeStatus(Status::INVALID_ARGUMENT, e.what());
   }
   return true;
@@ -577,6 +580,7 @@ bool LocalizerServer::GetInfo(ground_texture_bow::GetInfo::Request&, ground_text
   res.images_processed = processed_.load();
   res.images_dropped = dropped_.load();
   res.images_rejected = rejected_.load();
+  res.requests_rejected = rejected_requests_.load();
   res.fixes = fixes_.load();
   res.loop_closures = loop_closures_.load();
   {

@@ -361,6 +361,10 @@ TEST(BadInput, EachKindIsCountedReportedAndLosesNothing) {
           if (s.name.find("localizer") != std::string::npos) last = s;
         }
       });
+  // A nodelet that cannot start (no such vocabulary) in the same manager stays inert and does
+  // not take the manager, or this nodelet, down.
+  EXPECT_FALSE(ros::service::waitForService("/broken/get_info", ros::Duration(1.0)));
+  EXPECT_EQ(Info("/localizer").mode, "mapping");
   // A small map to protect.
   auto mapping = ReadBag(g_data + "/mapping.bag");
   mapping.resize(6);
@@ -421,7 +425,8 @@ TEST(BadInput, EachKindIsCountedReportedAndLosesNothing) {
   // Still alive, map intact in memory and on disk, counters and diagnostics tell the story.
   info = Info("/localizer");
   EXPECT_EQ(info.database_size, keyframes);
-  EXPECT_GE(info.images_rejected, 5u);  // 2 images + save + load + query
+  EXPECT_EQ(info.images_rejected, 2u);
+  EXPECT_EQ(info.requests_rejected, 3u);  // save, load, query
   EXPECT_EQ(gtbow::ReadFile(good_path), good_bytes);
   const ros::WallTime end = ros::WallTime::now() + ros::WallDuration(5);
   bool seen = false;
@@ -431,7 +436,11 @@ TEST(BadInput, EachKindIsCountedReportedAndLosesNothing) {
     for (const auto& kv : last.values) {
       if (kv.key == "missing transforms" && std::stoi(kv.value) >= 1) {
         for (const auto& kv2 : last.values) {
-          if (kv2.key == "rejected inputs" && std::stoi(kv2.value) >= 5) seen = true;
+          if (kv2.key == "rejected images" && std::stoi(kv2.value) == 2) {
+            for (const auto& kv3 : last.values) {
+              if (kv3.key == "rejected requests" && std::stoi(kv3.value) == 3) seen = true;
+            }
+          }
         }
       }
     }
@@ -489,6 +498,7 @@ TEST(Services, ExternalModeCompressedImagesAndMapServices) {
   const ros::WallTime deadline = ros::WallTime::now() + ros::WallDuration(20);
   while (pub.getNumSubscribers() == 0 && ros::WallTime::now() < deadline) ros::WallDuration(0.05).sleep();
   ASSERT_GT(pub.getNumSubscribers(), 0u);
+  ros::WallDuration(0.5).sleep();  // the connection is up on both sides
   for (size_t i : {3u, 7u}) {
     pub.publish(Compress(*mapping[i].image));
     ros::WallDuration(0.5).sleep();
@@ -516,7 +526,25 @@ TEST(Services, ExternalModeCompressedImagesAndMapServices) {
   }
   auto info = Info("/localizer");
   EXPECT_EQ(info.database_size, 12u);
-  EXPECT_EQ(info.images_rejected, 2u);  // the NaN pose and the undecodable image
+  EXPECT_EQ(info.images_rejected, 1u);    // the undecodable image
+  EXPECT_EQ(info.requests_rejected, 1u);  // the NaN pose
+
+  // A burst faster than the node can process: waiting images are replaced, and counted.
+  const uint64_t received_before = info.images_received;
+  for (int k = 0; k < 10; ++k) pub.publish(Compress(*mapping[k].image));
+  const ros::WallTime burst_end = ros::WallTime::now() + ros::WallDuration(10);
+  while (ros::WallTime::now() < burst_end) {
+    info = Info("/localizer");
+    if (info.images_received >= received_before + 10 &&
+        info.images_processed + info.images_dropped + info.images_rejected >= info.images_received) {
+      break;
+    }
+    ros::WallDuration(0.1).sleep();
+  }
+  EXPECT_EQ(info.images_received, received_before + 10);
+  EXPECT_GT(info.images_dropped, 0u);
+  EXPECT_EQ(info.images_processed + info.images_dropped + info.images_rejected, info.images_received);
+  EXPECT_EQ(info.database_size, 12u);  // external mode never inserts on its own
 
   // ~localize against the posed keyframes.
   ground_texture_bow::Localize loc;

@@ -112,7 +112,8 @@ class LocalizerServer {
                          const std_msgs::Header& header);
   void PublishMarkers(const ros::TimerEvent&);
   void Diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat);
-  void Reject(const std::string& what);
+  // Counts and reports bad input: an image from the topic, or a service request.
+  void Reject(const std::string& what, bool image);
 
   bool QueryCandidates(ground_texture_bow::QueryCandidates::Request& req,
                        ground_texture_bow::QueryCandidates::Response& res);
@@ -144,7 +145,8 @@ class LocalizerServer {
   ros::Timer diag_timer_;
 
   std::atomic<Mode> mode_;
-  std::atomic<uint64_t> received_{0}, processed_{0}, dropped_{0}, rejected_{0}, missing_tf_{0},
+  std::atomic<uint64_t> received_{0}, processed_{0}, dropped_{0}, rejected_{0},
+      rejected_requests_{0}, missing_tf_{0},
       fixes_{0}, loop_closures_{0}, failed_fixes_{0};
   std::atomic<double> last_processing_ms_{0.0};
   std::atomic<double> input_rate_hz_{0.0};
