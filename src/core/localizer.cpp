@@ -114,9 +114,11 @@ std::vector<Candidate> Localizer::QueryLocked(const BowVector& bow,
       if (kf.width != width || kf.height != height) {
         c.relative.reason = "the images differ in size";
       } else {
-        c.relative = EstimatePose(MatchesOf(r, keypoints, kf.keypoints), Pose2D{},
-                                  GeometryOf(width, height), options_.localization.pose);
+        const auto matches = MatchesOf(r, keypoints, kf.keypoints);
+        c.relative = EstimatePose(matches, Pose2D{}, GeometryOf(width, height),
+                                  options_.localization.pose);
         c.verified = c.relative.success;
+        for (int i : c.relative.inlier_indices) c.inliers.push_back(matches[i].query);
       }
     }
     out.push_back(std::move(c));
@@ -179,10 +181,12 @@ PoseFix Localizer::Localize(const ProcessedImage& image) const {
     } else if (kf.width != image.width || kf.height != image.height) {
       why = "other image size";
     } else {
-      PoseEstimate est = EstimatePose(MatchesOf(r, image.features.keypoints, kf.keypoints),
-                                      kf.map_from_camera, GeometryOf(image.width, image.height),
+      const auto matches = MatchesOf(r, image.features.keypoints, kf.keypoints);
+      PoseEstimate est = EstimatePose(matches, kf.map_from_camera,
+                                      GeometryOf(image.width, image.height),
                                       options_.localization.pose);
       if (est.success) {
+        for (int i : est.inlier_indices) fix.inlier_pixels.push_back(matches[i].query);
         fix.success = true;
         fix.map_from_camera = est.floor_from_query;
         fix.covariance = est.covariance;

@@ -261,10 +261,15 @@ void LocalizerServer::ProcessImage(const Pending& msg) {
     pose = LookupFootprint(header.frame_id, header.stamp, options_.map_frame, true);
   }
   const gtbow::ProcessedImage img = localizer_->Process(floor_image);
+  std::vector<gtbow::Vec2> inliers;
+  std::string caption = "no verified match";
   if (mode == Mode::kLocalization) {
     const gtbow::PoseFix fix = localizer_->Localize(img);
     if (fix.success) {
       PublishFix(fix, header);
+      inliers = fix.inlier_pixels;
+      caption = "fix from keyframe " + std::to_string(fix.keyframe) + ", " +
+                std::to_string(fix.inliers) + " inliers";
     } else {
       failed_fixes_++;
       ROS_DEBUG_THROTTLE(2.0, "ground_texture_bow: no fix: %s", fix.reason.c_str());
@@ -287,8 +292,17 @@ void LocalizerServer::ProcessImage(const Pending& msg) {
     for (const auto& c : cands) list.candidates.push_back(ToCandidateMsg(c));
     candidates_pub_.publish(list);
     PublishLoopClosures(cands, query_id, header);
+    for (const auto& c : cands) {
+      if (!c.verified) continue;
+      inliers = c.inliers;
+      caption = "keyframe " + std::to_string(c.id) + ", " + std::to_string(c.relative.inliers) +
+                " inliers";
+      break;
+    }
   }
-  if (debug_pub_.getNumSubscribers() > 0) PublishDebugImage(floor_image, img, header);
+  if (debug_pub_.getNumSubscribers() > 0) {
+    PublishDebugImage(floor_image, img, inliers, caption, header);
+  }
   processed_++;
   last_processing_ms_ =
       std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
@@ -347,16 +361,23 @@ void LocalizerServer::PublishLoopClosures(const std::vector<gtbow::Candidate>& c
 }
 
 void LocalizerServer::PublishDebugImage(const cv::Mat& floor_image, const gtbow::ProcessedImage& img,
-                                        const std_msgs::Header& header) {
+                                        const std::vector<gtbow::Vec2>& inliers,
+                                        const std::string& caption, const std_msgs::Header& header) {
   cv::Mat color;
   cv::Mat camera_view;
   cv::flip(floor_image, camera_view, 0);  // back to the camera's view
   cv::cvtColor(camera_view, color, cv::COLOR_GRAY2BGR);
-  const int h = floor_image.rows;
+  const float last_row = static_cast<float>(floor_image.rows - 1);
   for (const auto& k : img.features.keypoints) {
-    cv::circle(color, cv::Point2f(k.x, static_cast<float>(h - 1) - k.y), std::max(2.0f, 0.5f * k.size),
+    cv::circle(color, cv::Point2f(k.x, last_row - k.y), std::max(2.0f, 0.5f * k.size),
                cv::Scalar(0, 200, 0), 1, cv::LINE_AA);
   }
+  for (const auto& p : inliers) {
+    cv::circle(color, cv::Point2f(static_cast<float>(p.x), last_row - static_cast<float>(p.y)), 4,
+               cv::Scalar(0, 0, 255), 2, cv::LINE_AA);
+  }
+  cv::putText(color, caption, cv::Point(8, 24), cv::FONT_HERSHEY_SIMPLEX, 0.7,
+              cv::Scalar(0, 255, 255), 2, cv::LINE_AA);
   debug_pub_.publish(cv_bridge::CvImage(header, "bgr8", color).toImageMsg());
 }
 

@@ -106,6 +106,7 @@ TEST(Localizer, GlobalFixesOfRevisitsAreWithinTheProtocolsTolerance) {
               1.5);
     EXPECT_GT(fix.covariance[0], 0.0);
     EXPECT_GE(fix.inliers, 6);
+    EXPECT_EQ(fix.inlier_pixels.size(), static_cast<size_t>(fix.inliers));
   }
 }
 
@@ -120,6 +121,7 @@ TEST(Localizer, CandidatesCarryVerifiedRelativePosesAndNoFixWithoutPoses) {
     EXPECT_EQ(best.stamp_ns, 1000 + static_cast<int64_t>(best.id));
     EXPECT_FALSE(best.has_pose);
     ASSERT_TRUE(best.verified) << best.relative.reason;
+    EXPECT_EQ(best.inliers.size(), static_cast<size_t>(best.relative.inliers));
     const Pose2D truth = Relative(s.db_poses[best.id], s.revisit_poses[q]);
     const Pose2D& est = best.relative.floor_from_query;
     EXPECT_LT(1000 * std::hypot(est.x - truth.x, est.y - truth.y), 4.8);

@@ -310,6 +310,21 @@ TEST(SaveLoad, AFreshNodeLoadsTheMapAnswersAlikeAndLocalizesALaterDay) {
         fixes[p->header.stamp] = {p->pose.pose.position.x, p->pose.pose.position.y,
                                   gtbow_ros::YawOf(q.x, q.y, q.z, q.w)};
       });
+  // The match overlay: inliers drawn in red over the camera image.
+  int overlays_with_matches = 0;
+  ros::Subscriber debug_sub = nh.subscribe<sensor_msgs::Image>(
+      "/localizer/debug_image", 10, [&](const sensor_msgs::ImageConstPtr& img) {
+        const cv::Mat bgr = cv_bridge::toCvCopy(img, "bgr8")->image;
+        int red = 0;
+        for (int v = 0; v < bgr.rows; ++v) {
+          for (int u = 0; u < bgr.cols; ++u) {
+            const cv::Vec3b p = bgr.at<cv::Vec3b>(v, u);
+            red += p[2] > 200 && p[1] < 60 && p[0] < 60;
+          }
+        }
+        std::lock_guard<std::mutex> lock(m);
+        overlays_with_matches += red > 100;
+      });
   ros::WallDuration(0.5).sleep();
   Replay(later_robot2, "/loc_camera/image_raw", "/localizer", 4.0);
   ros::WallDuration(0.5).sleep();
@@ -325,6 +340,10 @@ TEST(SaveLoad, AFreshNodeLoadsTheMapAnswersAlikeAndLocalizesALaterDay) {
   std::printf("localization: %zu fixes for %zu images, %d within 4.8 mm / 1.5 deg\n", fixes.size(),
               later.size(), good);
   EXPECT_GE(good, static_cast<int>(later.size() * 9 / 10)) << good << " of " << later.size();
+  {
+    std::lock_guard<std::mutex> lock(m);
+    EXPECT_GE(overlays_with_matches, static_cast<int>(later.size() * 3 / 4));
+  }
   // map -> odom -> camera reproduces the last fix.
   {
     std::lock_guard<std::mutex> lock(m);

@@ -73,6 +73,7 @@ struct Candidate {
   Pose2D map_from_camera;  // the keyframe's pose (has_pose)
   bool verified = false;   // verification was asked for and succeeded
   PoseEstimate relative;   // match_from_query (when verification was asked for)
+  std::vector<Vec2> inliers;  // query pixels of the verified matches (for overlays)
 };
 
 // A global pose fix: the query image's pose in the map, from the first posed candidate that
@@ -85,6 +86,7 @@ struct PoseFix {
   uint32_t keyframe = 0;       // the keyframe that gave it
   int inliers = 0;
   float score = 0.0f;
+  std::vector<Vec2> inlier_pixels;  // query pixels of the inlier matches (for overlays)
 };
 
 class Localizer {

@@ -108,7 +108,10 @@ class LocalizerServer {
   void PublishFix(const gtbow::PoseFix& fix, const std_msgs::Header& header);
   void PublishLoopClosures(const std::vector<gtbow::Candidate>& cands, uint32_t query_id,
                            const std_msgs::Header& header);
+  // The camera image with its keypoints (green) and the verified matches of the winning
+  // keyframe (red), captioned with the keyframe and inlier count.
   void PublishDebugImage(const cv::Mat& floor_image, const gtbow::ProcessedImage& img,
+                         const std::vector<gtbow::Vec2>& inliers, const std::string& caption,
                          const std_msgs::Header& header);
   void PublishMarkers(const ros::TimerEvent&);
   void Diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat);
