@@ -82,6 +82,28 @@ std::vector<Frame> ReadBag(const std::string& path) {
   return out;
 }
 
+// Keeps every message received on a topic; the spinner thread appends, tests read copies.
+template <typename M>
+class Collector {
+ public:
+  explicit Collector(const std::string& topic, uint32_t queue = 100) {
+    sub_ = ros::NodeHandle().subscribe<M>(topic, queue, [this](const boost::shared_ptr<const M>& msg) {
+      std::lock_guard<std::mutex> lock(mutex_);
+      messages_.push_back(*msg);
+    });
+  }
+  std::vector<M> Get() const {
+    std::lock_guard<std::mutex> lock(mutex_);
+    return messages_;
+  }
+  void Stop() { sub_.shutdown(); }
+
+ private:
+  mutable std::mutex mutex_;
+  std::vector<M> messages_;
+  ros::Subscriber sub_;
+};
+
 template <typename Srv>
 Srv Call(const std::string& name, Srv srv = Srv()) {
   EXPECT_TRUE(ros::service::waitForService(name, ros::Duration(30))) << name;
@@ -140,37 +162,23 @@ gtbow::Pose2D Compose(const gtbow::Pose2D& keyframe, const geometry_msgs::Pose2D
 // ---------------------------------------------------------------------------------------------
 
 TEST(Mapping, ReplayBuildsKeyframesAndRevisitsGetTheRightOnes) {
-  ros::NodeHandle nh;
-  std::vector<ground_texture_bow::LoopClosure> closures;
-  std::mutex m;
-  ros::Subscriber sub = nh.subscribe<ground_texture_bow::LoopClosure>(
-      "/localizer/loop_closures", 100, [&](const ground_texture_bow::LoopClosureConstPtr& lc) {
-        std::lock_guard<std::mutex> lock(m);
-        closures.push_back(*lc);
-      });
+  Collector<ground_texture_bow::LoopClosure> closure_topic("/localizer/loop_closures");
   // The debug image is computed only with a subscriber: subscribe for the first part.
-  std::vector<sensor_msgs::ImageConstPtr> debug;
-  ros::Subscriber debug_sub = nh.subscribe<sensor_msgs::Image>(
-      "/localizer/debug_image", 10, [&](const sensor_msgs::ImageConstPtr& img) {
-        std::lock_guard<std::mutex> lock(m);
-        debug.push_back(img);
-      });
+  Collector<sensor_msgs::Image> debug_topic("/localizer/debug_image", 10);
   const auto mapping = ReadBag(g_data + "/mapping.bag");
   ASSERT_GT(mapping.size(), 20u);
   Replay(std::vector<Frame>(mapping.begin(), mapping.begin() + 5), "/camera/image_raw",
          "/localizer", 4.0);
-  debug_sub.shutdown();
+  debug_topic.Stop();
   Replay(std::vector<Frame>(mapping.begin() + 5, mapping.end()), "/camera/image_raw",
          "/localizer", 4.0);
-  {
-    std::lock_guard<std::mutex> lock(m);
-    EXPECT_GE(debug.size(), 3u);
-    EXPECT_LE(debug.size(), 6u);
-    if (!debug.empty()) {
-      EXPECT_EQ(debug[0]->width, mapping[0].image->width);
-      EXPECT_EQ(debug[0]->encoding, "bgr8");
-      EXPECT_EQ(debug[0]->header.stamp, mapping[0].image->header.stamp);
-    }
+  const auto debug = debug_topic.Get();
+  EXPECT_GE(debug.size(), 3u);
+  EXPECT_LE(debug.size(), 6u);
+  if (!debug.empty()) {
+    EXPECT_EQ(debug[0].width, mapping[0].image->width);
+    EXPECT_EQ(debug[0].encoding, "bgr8");
+    EXPECT_EQ(debug[0].header.stamp, mapping[0].image->header.stamp);
   }
   const auto info = Info("/localizer");
   EXPECT_EQ(info.mode, "mapping");
@@ -220,7 +228,7 @@ TEST(Mapping, ReplayBuildsKeyframesAndRevisitsGetTheRightOnes) {
   // Loop closures between lawnmower rows: each relative pose agrees with the ground truth.
   std::map<ros::Time, gtbow::Pose2D> truth;
   for (const Frame& f : mapping) truth[f.image->header.stamp] = f.truth;
-  std::lock_guard<std::mutex> lock(m);
+  const auto closures = closure_topic.Get();
   EXPECT_GE(closures.size(), 3u);
   int consistent = 0;
   for (const auto& lc : closures) {
@@ -245,7 +253,6 @@ TEST(Mapping, ReplayBuildsKeyframesAndRevisitsGetTheRightOnes) {
 // ---------------------------------------------------------------------------------------------
 
 TEST(SaveLoad, AFreshNodeLoadsTheMapAnswersAlikeAndLocalizesALaterDay) {
-  ros::NodeHandle nh;
   const auto mapping = ReadBag(g_data + "/mapping.bag");
   Replay(mapping, "/map_camera/image_raw", "/mapper", 4.0);
   const fs::path dir = fs::temp_directory_path() / ("gtbow_rostest_" + std::to_string(::getpid()));
@@ -298,62 +305,50 @@ TEST(SaveLoad, AFreshNodeLoadsTheMapAnswersAlikeAndLocalizesALaterDay) {
   tf2_ros::Buffer tf_buffer;
   tf2_ros::TransformListener tf_listener(tf_buffer);
 
-  // Localization mode: a day-30 run without TF gets fixes within the protocol's tolerance.
-  std::map<ros::Time, gtbow::Pose2D> fixes;
-  std::mutex m;
-  ros::Subscriber sub = nh.subscribe<geometry_msgs::PoseWithCovarianceStamped>(
-      "/localizer/pose", 100, [&](const geometry_msgs::PoseWithCovarianceStampedConstPtr& p) {
-        std::lock_guard<std::mutex> lock(m);
-        const auto& q = p->pose.pose.orientation;
-        EXPECT_EQ(p->header.frame_id, "map");
-        EXPECT_GT(p->pose.covariance[0], 0.0);
-        fixes[p->header.stamp] = {p->pose.pose.position.x, p->pose.pose.position.y,
-                                  gtbow_ros::YawOf(q.x, q.y, q.z, q.w)};
-      });
-  // The match overlay: inliers drawn in red over the camera image.
-  int overlays_with_matches = 0;
-  ros::Subscriber debug_sub = nh.subscribe<sensor_msgs::Image>(
-      "/localizer/debug_image", 10, [&](const sensor_msgs::ImageConstPtr& img) {
-        const cv::Mat bgr = cv_bridge::toCvCopy(img, "bgr8")->image;
-        int red = 0;
-        for (int v = 0; v < bgr.rows; ++v) {
-          for (int u = 0; u < bgr.cols; ++u) {
-            const cv::Vec3b p = bgr.at<cv::Vec3b>(v, u);
-            red += p[2] > 200 && p[1] < 60 && p[0] < 60;
-          }
-        }
-        std::lock_guard<std::mutex> lock(m);
-        overlays_with_matches += red > 100;
-      });
+  // Localization mode: a day-30 run without TF gets fixes within the protocol's tolerance, and
+  // the match overlay draws the inliers in red over the camera image.
+  Collector<geometry_msgs::PoseWithCovarianceStamped> fix_topic("/localizer/pose");
+  Collector<sensor_msgs::Image> debug_topic("/localizer/debug_image");
   ros::WallDuration(0.5).sleep();
   Replay(later_robot2, "/loc_camera/image_raw", "/localizer", 4.0);
   ros::WallDuration(0.5).sleep();
+  std::map<ros::Time, gtbow::Pose2D> fixes;
+  for (const auto& p : fix_topic.Get()) {
+    const auto& q = p.pose.pose.orientation;
+    EXPECT_EQ(p.header.frame_id, "map");
+    EXPECT_GT(p.pose.covariance[0], 0.0);
+    fixes[p.header.stamp] = {p.pose.pose.position.x, p.pose.pose.position.y,
+                             gtbow_ros::YawOf(q.x, q.y, q.z, q.w)};
+  }
   int good = 0;
-  {
-    std::lock_guard<std::mutex> lock(m);
-    for (const Frame& f : later) {
-      auto it = fixes.find(f.image->header.stamp);
-      if (it == fixes.end()) continue;
-      good += PositionErrorMm(it->second, f.truth) <= 4.8 && HeadingErrorDeg(it->second, f.truth) <= 1.5;
-    }
+  for (const Frame& f : later) {
+    auto it = fixes.find(f.image->header.stamp);
+    if (it == fixes.end()) continue;
+    good += PositionErrorMm(it->second, f.truth) <= 4.8 && HeadingErrorDeg(it->second, f.truth) <= 1.5;
   }
   std::printf("localization: %zu fixes for %zu images, %d within 4.8 mm / 1.5 deg\n", fixes.size(),
               later.size(), good);
   EXPECT_GE(good, static_cast<int>(later.size() * 9 / 10)) << good << " of " << later.size();
-  {
-    std::lock_guard<std::mutex> lock(m);
-    EXPECT_GE(overlays_with_matches, static_cast<int>(later.size() * 3 / 4));
+  int overlays_with_matches = 0;
+  for (const auto& img : debug_topic.Get()) {
+    const cv::Mat bgr = cv_bridge::toCvCopy(img, "bgr8")->image;
+    int red = 0;
+    for (int v = 0; v < bgr.rows; ++v) {
+      for (int u = 0; u < bgr.cols; ++u) {
+        const cv::Vec3b px = bgr.at<cv::Vec3b>(v, u);
+        red += px[2] > 200 && px[1] < 60 && px[0] < 60;
+      }
+    }
+    overlays_with_matches += red > 100;
   }
+  EXPECT_GE(overlays_with_matches, static_cast<int>(later.size() * 3 / 4));
   // map -> odom -> camera reproduces the last fix.
-  {
-    std::lock_guard<std::mutex> lock(m);
-    ASSERT_FALSE(fixes.empty());
-    const auto& [stamp, fix] = *fixes.rbegin();
-    const auto t = tf_buffer.lookupTransform("map", odom_cam.child_frame_id, stamp, ros::Duration(2));
-    const gtbow::Pose2D through_tf = gtbow_ros::FootprintFromTransform(t.transform);
-    EXPECT_LT(PositionErrorMm(through_tf, fix), 0.01);
-    EXPECT_LT(HeadingErrorDeg(through_tf, fix), 0.01);
-  }
+  ASSERT_FALSE(fixes.empty());
+  const auto& [stamp, fix] = *fixes.rbegin();
+  const auto t = tf_buffer.lookupTransform("map", odom_cam.child_frame_id, stamp, ros::Duration(2));
+  const gtbow::Pose2D through_tf = gtbow_ros::FootprintFromTransform(t.transform);
+  EXPECT_LT(PositionErrorMm(through_tf, fix), 0.01);
+  EXPECT_LT(HeadingErrorDeg(through_tf, fix), 0.01);
   const auto info = Info("/localizer");
   EXPECT_EQ(info.mode, "localization");
   EXPECT_EQ(info.fixes, fixes.size());
@@ -370,16 +365,7 @@ TEST(SaveLoad, AFreshNodeLoadsTheMapAnswersAlikeAndLocalizesALaterDay) {
 // ---------------------------------------------------------------------------------------------
 
 TEST(BadInput, EachKindIsCountedReportedAndLosesNothing) {
-  ros::NodeHandle nh;
-  diagnostic_msgs::DiagnosticStatus last;
-  std::mutex m;
-  ros::Subscriber sub = nh.subscribe<diagnostic_msgs::DiagnosticArray>(
-      "/diagnostics", 10, [&](const diagnostic_msgs::DiagnosticArrayConstPtr& d) {
-        std::lock_guard<std::mutex> lock(m);
-        for (const auto& s : d->status) {
-          if (s.name.find("localizer") != std::string::npos) last = s;
-        }
-      });
+  Collector<diagnostic_msgs::DiagnosticArray> diagnostics("/diagnostics");
   // A nodelet that cannot start (no such vocabulary) in the same manager stays inert and does
   // not take the manager, or this nodelet, down.
   EXPECT_FALSE(ros::service::waitForService("/broken/get_info", ros::Duration(1.0)));
@@ -448,27 +434,32 @@ TEST(BadInput, EachKindIsCountedReportedAndLosesNothing) {
   EXPECT_EQ(info.requests_rejected, 3u);  // save, load, query
   EXPECT_EQ(gtbow::ReadFile(good_path), good_bytes);
   const ros::WallTime end = ros::WallTime::now() + ros::WallDuration(5);
+  // The localizer's latest diagnostic status, its values by key.
+  auto latest = [&](diagnostic_msgs::DiagnosticStatus* status) {
+    std::map<std::string, std::string> values;
+    for (const auto& array : diagnostics.Get()) {
+      for (const auto& st : array.status) {
+        if (st.name.find("localizer") == std::string::npos) continue;
+        *status = st;
+        values.clear();
+        for (const auto& kv : st.values) values[kv.key] = kv.value;
+      }
+    }
+    return values;
+  };
+  diagnostic_msgs::DiagnosticStatus status;
+  std::map<std::string, std::string> values;
   bool seen = false;
   while (!seen && ros::WallTime::now() < end) {
     ros::WallDuration(0.2).sleep();
-    std::lock_guard<std::mutex> lock(m);
-    for (const auto& kv : last.values) {
-      if (kv.key == "missing transforms" && std::stoi(kv.value) >= 1) {
-        for (const auto& kv2 : last.values) {
-          if (kv2.key == "rejected images" && std::stoi(kv2.value) == 2) {
-            for (const auto& kv3 : last.values) {
-              if (kv3.key == "rejected requests" && std::stoi(kv3.value) == 3) seen = true;
-            }
-          }
-        }
-      }
-    }
+    values = latest(&status);
+    const std::string& missing = values["missing transforms"];
+    seen = !missing.empty() && std::stoi(missing) >= 1 && values["rejected images"] == "2" &&
+           values["rejected requests"] == "3";
   }
-  EXPECT_TRUE(seen) << "diagnostics do not report the rejected inputs and the missing transform";
-  {
-    std::lock_guard<std::mutex> lock(m);
-    EXPECT_EQ(last.level, diagnostic_msgs::DiagnosticStatus::WARN);
-  }
+  EXPECT_TRUE(seen) << "diagnostics do not report the rejected images and requests and the "
+                       "missing transform";
+  EXPECT_EQ(status.level, diagnostic_msgs::DiagnosticStatus::WARN);
   fs::remove_all(dir);
 }
 
@@ -486,13 +477,7 @@ sensor_msgs::CompressedImage Compress(const sensor_msgs::Image& img) {
 
 TEST(Services, ExternalModeCompressedImagesAndMapServices) {
   ros::NodeHandle nh;
-  std::vector<ground_texture_bow::CandidateList> lists;
-  std::mutex m;
-  ros::Subscriber sub = nh.subscribe<ground_texture_bow::CandidateList>(
-      "/localizer/candidates", 100, [&](const ground_texture_bow::CandidateListConstPtr& l) {
-        std::lock_guard<std::mutex> lock(m);
-        lists.push_back(*l);
-      });
+  Collector<ground_texture_bow::CandidateList> list_topic("/localizer/candidates");
   ros::Publisher pub = nh.advertise<sensor_msgs::CompressedImage>("/camera/image_raw/compressed", 10);
   const auto mapping = ReadBag(g_data + "/mapping.bag");
   EXPECT_EQ(Info("/localizer").mode, "external");
@@ -529,20 +514,16 @@ TEST(Services, ExternalModeCompressedImagesAndMapServices) {
   pub.publish(garbage);
   const ros::WallTime end = ros::WallTime::now() + ros::WallDuration(10);
   while (ros::WallTime::now() < end) {
-    {
-      std::lock_guard<std::mutex> lock(m);
-      if (lists.size() >= 2 && Info("/localizer").images_rejected >= 1) break;
-    }
+    if (list_topic.Get().size() >= 2 && Info("/localizer").images_rejected >= 1) break;
     ros::WallDuration(0.1).sleep();
   }
-  {
-    std::lock_guard<std::mutex> lock(m);
-    ASSERT_EQ(lists.size(), 2u);
-    ASSERT_FALSE(lists[0].candidates.empty());
-    EXPECT_EQ(lists[0].candidates[0].id, 3u);  // the same image was keyframe 3
-    EXPECT_EQ(lists[1].candidates[0].id, 7u);
-    EXPECT_EQ(lists[0].query_id, ground_texture_bow::CandidateList::NO_ID);
-  }
+  const auto lists = list_topic.Get();
+  ASSERT_EQ(lists.size(), 2u);
+  ASSERT_FALSE(lists[0].candidates.empty());
+  ASSERT_FALSE(lists[1].candidates.empty());
+  EXPECT_EQ(lists[0].candidates[0].id, 3u);  // the same image was keyframe 3
+  EXPECT_EQ(lists[1].candidates[0].id, 7u);
+  EXPECT_EQ(lists[0].query_id, ground_texture_bow::CandidateList::NO_ID);
   auto info = Info("/localizer");
   EXPECT_EQ(info.database_size, 12u);
   EXPECT_EQ(info.images_rejected, 1u);    // the undecodable image
