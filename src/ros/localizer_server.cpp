@@ -129,10 +129,10 @@ LocalizerServer::LocalizerServer(ros::NodeHandle nh, ros::NodeHandle pnh,
   // The subscription goes last: callbacks may start at once.
   if (options_.transport == "compressed") {
     // Decoded here with OpenCV: Debian ships no compressed image_transport plugin.
-    compressed_sub_ = nh_.subscribe(nh_.resolveName("image") + "/compressed", 2,
+    compressed_sub_ = nh_.subscribe(nh_.resolveName("image") + "/compressed", 5,
                                     &LocalizerServer::CompressedCallback, this);
   } else {
-    image_sub_ = it_.subscribe("image", 2, &LocalizerServer::ImageCallback, this);
+    image_sub_ = it_.subscribe("image", 5, &LocalizerServer::ImageCallback, this);
   }
   ROS_INFO("ground_texture_bow: %s mode, %zu keyframes, vocabulary %s (%u words), preset %s",
            ModeName(mode_).c_str(), localizer_->size(), vocab_path.c_str(),
