@@ -579,6 +579,31 @@ TEST(Services, ExternalModeCompressedImagesAndMapServices) {
   Call("/localizer/set_mode", mode);
   EXPECT_EQ(Call<ground_texture_bow::Reset>("/localizer/reset").response.status.code, Status::OK);
   EXPECT_EQ(Info("/localizer").database_size, 0u);
+
+  // Mapping without TF: the first image and then every keyframe_every_n-th (3 here) becomes a
+  // keyframe, without a pose.
+  mode.request.mode = "mapping";
+  Call("/localizer/set_mode", mode);
+  const uint64_t before_mapping = Info("/localizer").images_processed;
+  for (int k = 0; k < 10; ++k) {
+    sensor_msgs::CompressedImage c = Compress(*mapping[k].image);
+    c.header.frame_id = "camera_without_tf";
+    pub.publish(c);
+    ros::WallDuration(0.3).sleep();
+  }
+  const ros::WallTime mapped = ros::WallTime::now() + ros::WallDuration(10);
+  while (Info("/localizer").images_processed < before_mapping + 10 && ros::WallTime::now() < mapped) {
+    ros::WallDuration(0.1).sleep();
+  }
+  info = Info("/localizer");
+  ASSERT_EQ(info.images_processed, before_mapping + 10) << "images were dropped";
+  EXPECT_EQ(info.database_size, 4u);  // images 1, 4, 7 and 10
+  ground_texture_bow::QueryCandidates by_id;
+  by_id.request.use_keyframe_id = true;
+  by_id.request.keyframe_id = 1;
+  by_id = Call("/localizer/query_candidates", by_id);
+  ASSERT_EQ(by_id.response.status.code, Status::OK);
+  for (const auto& c : by_id.response.candidates) EXPECT_FALSE(c.has_pose);
 }
 
 }  // namespace
