@@ -473,9 +473,31 @@ void LocalizerServer::Diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat
 // ---------------------------------------------------------------------------------------------
 // Services: always return true; the outcome is in status (cartographer_ros's StatusResponse).
 
+template <typename Body>
+Status LocalizerServer::Serve(const char* name, bool any_error_is_input, Body&& body) {
+  try {
+    return body();
+  } catch (const std::out_of_range& e) {
+    return MakeStatus(Status::NOT_FOUND, e.what());
+  } catch (const std::invalid_argument& e) {
+    Reject(std::string(name) + ": " + e.what(), false);
+    return MakeStatus(Status::INVALID_ARGUMENT, e.what());
+  } catch (const std::exception& e) {
+    if (!any_error_is_input) return MakeStatus(Status::INTERNAL, e.what());
+    Reject(std::string(name) + ": " + e.what(), false);
+    return MakeStatus(Status::INVALID_ARGUMENT, e.what());
+  }
+}
+
+void LocalizerServer::ForgetMapState() {
+  std::lock_guard<std::mutex> lock(state_mutex_);
+  edges_.clear();
+  last_keyframe_pose_.reset();
+}
+
 bool LocalizerServer::QueryCandidates(ground_texture_bow::QueryCandidates::Request& req,
                                       ground_texture_bow::QueryCandidates::Response& res) {
-  try {
+  res.status = Serve("query_candidates", false, [&] {
     const size_t k = req.k > 0 ? req.k : static_cast<size_t>(options_.candidates);
     std::vector<gtbow::Candidate> cands;
     if (req.use_keyframe_id) {
@@ -484,95 +506,64 @@ bool LocalizerServer::QueryCandidates(ground_texture_bow::QueryCandidates::Reque
       cands = localizer_->Query(localizer_->Process(ToFloorImage(req.image)), k, req.verify);
     }
     for (const auto& c : cands) res.candidates.push_back(ToCandidateMsg(c));
-    res.status = MakeStatus(Status::OK, std::to_string(cands.size()) + " candidates");
-  } catch (const std::out_of_range& e) {
-    res.status = MakeStatus(Status::NOT_FOUND, e.what());
-  } catch (const std::invalid_argument& e) {
-    Reject(std::string("query_candidates: ") + e.what(), false);
-    res.status = MakeStatus(Status::INVALID_ARGUMENT, e.what());
-  } catch (const std::exception& e) {
-    res.status = MakeStatus(Status::INTERNAL, e.what());
-  }
+    return MakeStatus(Status::OK, std::to_string(cands.size()) + " candidates");
+  });
   return true;
 }
 
 bool LocalizerServer::AddKeyframe(ground_texture_bow::AddKeyframe::Request& req,
                                   ground_texture_bow::AddKeyframe::Response& res) {
-  try {
+  res.status = Serve("add_keyframe", false, [&] {
     if (mode_.load() == Mode::kLocalization) {
-      res.status = MakeStatus(Status::FAILED_PRECONDITION,
-                              "localization mode: the map is read-only (set_mode first)");
-      return true;
+      return MakeStatus(Status::FAILED_PRECONDITION,
+                        "localization mode: the map is read-only (set_mode first)");
     }
     std::optional<gtbow::Pose2D> pose;
     if (req.has_pose) pose = FromPose2DMsg(req.pose);
     const gtbow::ProcessedImage img = localizer_->Process(ToFloorImage(req.image));
     res.id = localizer_->Add(img, ToNanoseconds(req.image.header.stamp), pose);
-    res.status = MakeStatus(Status::OK, "keyframe " + std::to_string(res.id) + " with " +
-                                            std::to_string(img.features.size()) + " keypoints");
-  } catch (const std::invalid_argument& e) {
-    Reject(std::string("add_keyframe: ") + e.what(), false);
-    res.status = MakeStatus(Status::INVALID_ARGUMENT, e.what());
-  } catch (const std::exception& e) {
-    res.status = MakeStatus(Status::INTERNAL, e.what());
-  }
+    return MakeStatus(Status::OK, "keyframe " + std::to_string(res.id) + " with " +
+                                      std::to_string(img.features.size()) + " keypoints");
+  });
   return true;
 }
 
 bool LocalizerServer::LocalizeSrv(ground_texture_bow::Localize::Request& req,
                                   ground_texture_bow::Localize::Response& res) {
-  try {
+  res.status = Serve("localize", false, [&] {
     const gtbow::PoseFix fix = localizer_->Localize(localizer_->Process(ToFloorImage(req.image)));
     res.localized = fix.success;
-    if (fix.success) {
-      res.pose = ToPoseWithCovariance(fix.map_from_camera, fix.covariance, req.image.header.stamp,
-                                      options_.map_frame, options_.planar_variance);
-      res.keyframe_id = fix.keyframe;
-      res.inliers = static_cast<uint32_t>(fix.inliers);
-      res.status = MakeStatus(Status::OK, "localized against keyframe " + std::to_string(fix.keyframe));
-    } else {
-      res.status = MakeStatus(Status::NOT_FOUND, fix.reason);
-    }
-  } catch (const std::invalid_argument& e) {
-    Reject(std::string("localize: ") + e.what(), false);
-    res.status = MakeStatus(Status::INVALID_ARGUMENT, e.what());
-  } catch (const std::exception& e) {
-    res.status = MakeStatus(Status::INTERNAL, e.what());
-  }
+    if (!fix.success) return MakeStatus(Status::NOT_FOUND, fix.reason);
+    res.pose = ToPoseWithCovariance(fix.map_from_camera, fix.covariance, req.image.header.stamp,
+                                    options_.map_frame, options_.planar_variance);
+    res.keyframe_id = fix.keyframe;
+    res.inliers = static_cast<uint32_t>(fix.inliers);
+    return MakeStatus(Status::OK, "localized against keyframe " + std::to_string(fix.keyframe));
+  });
   return true;
 }
 
 bool LocalizerServer::SaveMap(ground_texture_bow::SaveMap::Request& req,
                               ground_texture_bow::SaveMap::Response& res) {
-  try {
+  res.status = Serve("save_map", true, [&] {
     if (req.path.empty()) throw std::invalid_argument("empty path");
     localizer_->Save(req.path);
-    res.status = MakeStatus(Status::OK, "saved " + std::to_string(localizer_->size()) +
-                                            " keyframes to " + req.path);
-  } catch (const std::exception& e) {
-    Reject(std::string("save_map: ") + e.what(), false);
-    res.status = MakeStatus(Status::INVALID_ARGUMENT, e.what());
-  }
+    return MakeStatus(Status::OK, "saved " + std::to_string(localizer_->size()) +
+                                      " keyframes to " + req.path);
+  });
   return true;
 }
 
 bool LocalizerServer::LoadMap(ground_texture_bow::LoadMap::Request& req,
                               ground_texture_bow::LoadMap::Response& res) {
-  try {
+  res.status = Serve("load_map", true, [&] {
     if (req.path.empty()) throw std::invalid_argument("empty path");
     localizer_->Load(req.path);
-    {
-      std::lock_guard<std::mutex> lock(state_mutex_);
-      edges_.clear();
-      last_keyframe_pose_.reset();
-    }
+    ForgetMapState();
     res.keyframes = static_cast<uint32_t>(localizer_->size());
-    res.status = MakeStatus(Status::OK, "loaded " + std::to_string(res.keyframes) +
-                                            " keyframes from " + req.path);
-  } catch (const std::exception& e) {
-    Reject(std::string("load_map: ") + e.what(), false);
-    res.status = MakeStatus(Status::INVALID_ARGUMENT, e.what());
-  }
+    return MakeStatus(Status::OK, "loaded " + std::to_string(res.keyframes) + " keyframes from " +
+                                      req.path);
+  });
   return true;
 }
 
@@ -582,11 +573,7 @@ bool LocalizerServer::ResetSrv(ground_texture_bow::Reset::Request&, ground_textu
     return true;
   }
   localizer_->Reset();
-  {
-    std::lock_guard<std::mutex> lock(state_mutex_);
-    edges_.clear();
-    last_keyframe_pose_.reset();
-  }
+  ForgetMapState();
   res.status = MakeStatus(Status::OK, "map cleared");
   return true;
 }

@@ -118,6 +118,15 @@ class LocalizerServer {
   // Counts and reports bad input: an image from the topic, or a service request.
   void Reject(const std::string& what, bool image);
 
+  // Runs a service body (returning its status) and turns exceptions into a status:
+  // std::out_of_range -> NOT_FOUND; std::invalid_argument, or any error when `any_error_is_input`
+  // (a bad path, a damaged map file) -> INVALID_ARGUMENT, counted as a rejected request;
+  // anything else -> INTERNAL.
+  template <typename Body>
+  ground_texture_bow::Status Serve(const char* name, bool any_error_is_input, Body&& body);
+  // Forgets the per-map bookkeeping (loop-closure edges, last keyframe pose).
+  void ForgetMapState();
+
   bool QueryCandidates(ground_texture_bow::QueryCandidates::Request& req,
                        ground_texture_bow::QueryCandidates::Response& res);
   bool AddKeyframe(ground_texture_bow::AddKeyframe::Request& req,
