@@ -15,6 +15,11 @@ void RetrievalConfig::Check() const {
   features.Check();
   vocabulary.Check();
   bow.Check();
+  if (bow.compact_postings && features.num_features > 256) {
+    throw std::invalid_argument("bow: compact_postings holds at most 256 keypoints per image; set "
+                                "compact_postings: false for features.num_features " +
+                                std::to_string(features.num_features));
+  }
   if (vocabulary.kind == VocabularyKind::kHkm && bow.soft_assignment != 1) {
     throw std::invalid_argument("bow: soft_assignment must be 1 with an hkm vocabulary");
   }
@@ -88,7 +93,8 @@ std::map<std::string, std::map<std::string, Setter>> Schema(RetrievalConfig* c) 
         {"sigma", Set(&b.sigma)},
         {"orientation_verification", Set(&b.orientation_verification)},
         {"orientation_bins", Set(&b.orientation_bins)},
-        {"scoring", SetEnum(&b.scoring, &ParseScoring)}}},
+        {"scoring", SetEnum(&b.scoring, &ParseScoring)},
+        {"compact_postings", Set(&b.compact_postings)}}},
   };
 }
 
@@ -174,7 +180,8 @@ std::string FormatRetrievalConfig(const RetrievalConfig& c) {
     << "  sigma: " << b.sigma << "\n"
     << "  orientation_verification: " << (b.orientation_verification ? "true" : "false") << "\n"
     << "  orientation_bins: " << b.orientation_bins << "\n"
-    << "  scoring: " << ScoringName(b.scoring) << "\n";
+    << "  scoring: " << ScoringName(b.scoring) << "\n"
+    << "  compact_postings: " << (b.compact_postings ? "true" : "false") << "\n";
   return s.str();
 }
 

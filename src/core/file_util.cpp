@@ -1,6 +1,7 @@
 #include "ground_texture_bow/core/file_util.h"
 
 #include <fcntl.h>
+#include <sys/mman.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
@@ -34,36 +35,90 @@ void WriteFileAtomic(const fs::path& path, const std::string& contents) {
 }
 
 void WriteFileAtomic(const fs::path& path, std::initializer_list<std::string_view> pieces) {
-  const fs::path dir = path.has_parent_path() ? path.parent_path() : fs::path(".");
-  const fs::path tmp = dir / ("." + path.filename().string() + ".tmp-" + RandomSuffix());
-  const int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0644);
-  if (fd < 0) {
-    throw std::runtime_error("cannot write '" + path.string() + "': " + Errno());
+  AtomicFileWriter out(path);
+  for (std::string_view piece : pieces) out.Write(piece);
+  out.Commit();
+}
+
+AtomicFileWriter::AtomicFileWriter(fs::path path) : path_(std::move(path)) {
+  const fs::path dir = path_.has_parent_path() ? path_.parent_path() : fs::path(".");
+  tmp_ = dir / ("." + path_.filename().string() + ".tmp-" + RandomSuffix());
+  fd_ = ::open(tmp_.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0644);
+  if (fd_ < 0) throw std::runtime_error("cannot write '" + path_.string() + "': " + Errno());
+}
+
+AtomicFileWriter::~AtomicFileWriter() {
+  if (fd_ >= 0) {
+    ::close(fd_);
+    ::unlink(tmp_.c_str());
   }
-  for (std::string_view piece : pieces) {
-    size_t done = 0;
-    while (done < piece.size()) {
-      const ssize_t n = ::write(fd, piece.data() + done, piece.size() - done);
-      if (n < 0) {
-        if (errno == EINTR) continue;
-        const std::string why = Errno();
-        ::close(fd);
-        ::unlink(tmp.c_str());
-        throw std::runtime_error("cannot write '" + path.string() + "': " + why);
-      }
-      done += static_cast<size_t>(n);
+}
+
+void AtomicFileWriter::Fail(const std::string& why) {
+  if (fd_ >= 0) ::close(fd_);
+  fd_ = -1;
+  ::unlink(tmp_.c_str());
+  throw std::runtime_error("cannot write '" + path_.string() + "': " + why);
+}
+
+void AtomicFileWriter::Write(const void* data, size_t size) {
+  if (fd_ < 0) throw std::logic_error("AtomicFileWriter: write after commit or failure");
+  const char* p = static_cast<const char*>(data);
+  size_t done = 0;
+  while (done < size) {
+    const ssize_t n = ::write(fd_, p + done, size - done);
+    if (n < 0) {
+      if (errno == EINTR) continue;
+      Fail(Errno());
+    }
+    done += static_cast<size_t>(n);
+  }
+  written_ += size;
+}
+
+void AtomicFileWriter::Commit() {
+  if (fd_ < 0) throw std::logic_error("AtomicFileWriter: commit after commit or failure");
+  if (::fsync(fd_) != 0) Fail(Errno());
+  const int fd = fd_;
+  fd_ = -1;
+  if (::close(fd) != 0) {
+    const std::string why = Errno();
+    ::unlink(tmp_.c_str());
+    throw std::runtime_error("cannot write '" + path_.string() + "': " + why);
+  }
+  if (::rename(tmp_.c_str(), path_.c_str()) != 0) {
+    const std::string why = Errno();
+    ::unlink(tmp_.c_str());
+    throw std::runtime_error("cannot write '" + path_.string() + "': " + why);
+  }
+}
+
+std::shared_ptr<const MappedFile> MappedFile::Open(const fs::path& path) {
+  const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+  if (fd < 0) throw std::runtime_error("cannot read '" + path.string() + "': " + Errno());
+  struct stat st {};
+  const bool stat_ok = ::fstat(fd, &st) == 0;
+  if (!stat_ok || !S_ISREG(st.st_mode)) {
+    const std::string why = stat_ok ? std::string("not a regular file") : Errno();
+    ::close(fd);
+    throw std::runtime_error("cannot read '" + path.string() + "': " + why);
+  }
+  const size_t size = static_cast<size_t>(st.st_size);
+  void* p = nullptr;
+  if (size > 0) {
+    p = ::mmap(nullptr, size, PROT_READ, MAP_PRIVATE, fd, 0);
+    if (p == MAP_FAILED) {
+      const std::string why = Errno();
+      ::close(fd);
+      throw std::runtime_error("cannot map '" + path.string() + "': " + why);
     }
   }
-  if (::fsync(fd) != 0 || ::close(fd) != 0) {
-    const std::string why = Errno();
-    ::unlink(tmp.c_str());
-    throw std::runtime_error("cannot write '" + path.string() + "': " + why);
-  }
-  if (::rename(tmp.c_str(), path.c_str()) != 0) {
-    const std::string why = Errno();
-    ::unlink(tmp.c_str());
-    throw std::runtime_error("cannot write '" + path.string() + "': " + why);
-  }
+  ::close(fd);  // the mapping keeps the file
+  return std::shared_ptr<const MappedFile>(new MappedFile(static_cast<const char*>(p), size));
+}
+
+MappedFile::~MappedFile() {
+  if (size_ > 0) ::munmap(const_cast<char*>(data_), size_);
 }
 
 std::string ReadFile(const fs::path& path) {

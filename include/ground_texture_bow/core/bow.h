@@ -32,6 +32,10 @@ struct BowOptions {
   bool orientation_verification = true;  // §II-B; off: the score is the plain dot product
   int orientation_bins = 6;              // R
   Scoring scoring = Scoring::kDot;
+  // Inverted-index entry layout (database.h): compact 6-byte entries (8-bit keypoint ids, so
+  // at most 256 keypoints per image, and 8-bit log-scale weights) or precise 8-byte entries
+  // (16-bit keypoint ids, 16-bit linear weights). Retrieval is the same up to rounding.
+  bool compact_postings = true;
 
   // Throws std::invalid_argument naming the first bad field.
   void Check() const;

@@ -5,12 +5,22 @@
 // shared row votes q_w * d_w * c_q * c_d into the orientation-difference bin of its image, and
 // the image's score is its best bin.
 //
-// Layout (8 bytes per database keypoint on a row, nothing per posting): a row is one
-// contiguous array of keypoint entries; a posting is the run of consecutive entries of one
-// image. An entry packs the image id (24 bits) with the keypoint's orientation (8 bits, 1.4
-// degree steps), the keypoint id (16 bits) and d_w * c_d quantised to 16 bits. Since the c_d of
-// a posting sum to 1, d_w is the sum of its entries' weights; the plain dot product and the
-// DBoW2 L1 score are computed from that. At most 2^24 image ids.
+// Layout: a row is an array of keypoint entries, nothing per posting; a posting is the run of
+// consecutive entries of one image, and runs are in image-id order. An entry packs the image id
+// (24 bits, so at most 2^24 image ids), the keypoint's orientation (8 bits, 1.4 degree steps),
+// the keypoint id and d_w * c_d. Compact entries (BowOptions::compact_postings, the default)
+// take 6 bytes: an 8-bit keypoint id and an 8-bit weight on a log scale (2^(-1/16) steps, at
+// most 2.2% off); precise entries take 8 bytes: 16-bit keypoint id, 16-bit linear weight.
+// Since the c_d of a posting sum to 1, d_w is the sum of its entries' weights; the plain dot
+// product and the DBoW2 L1 score are computed from that.
+//
+// Storage: each row is a read-only base segment (from Load: a memory-mapped file, so loading
+// does not copy the entries; from Deserialize: one owned block) followed by a growable tail
+// that Add() appends to. Insertion costs the same at any size.
+//
+// Queries accumulate votes block by block over image ids (a block's accumulator fits in the
+// core's cache), each row scanned once with a cursor, and may split the blocks over several
+// threads (set_query_threads). Results are identical for any thread count.
 //
 // Thread safety: any number of concurrent Query() calls with one writer. Add(), Remove() and
 // Load() take the index's mutex exclusively; Query(), size() and Save() take it shared.
@@ -26,6 +36,13 @@
 #include "ground_texture_bow/core/bow.h"
 
 namespace gtbow {
+
+namespace detail {
+struct CompactEntry;
+struct PreciseEntry;
+template <class E>
+struct PostingIndex;
+}  // namespace detail
 
 // A query keypoint matched to a database keypoint on a shared row, in the winning bin.
 struct MatchPair {
@@ -67,26 +84,37 @@ class BowDatabase {
   uint32_t next_id() const;     // ids handed out so far
   uint32_t num_rows() const { return num_rows_; }
   const BowOptions& options() const { return options_; }
-  size_t MemoryBytes() const;   // rows, entries (with spare capacity) and image flags
+  size_t MemoryBytes() const;   // rows, entries (mapped, owned, spare capacity) and image flags
+  size_t num_entries() const;   // keypoint entries in all rows
+  // Threads one query may use (blocks of image ids are shared among them); 1 by default.
+  void set_query_threads(int threads);
+  int query_threads() const { return query_threads_; }
 
-  // Writes the index atomically (magic, version, checksum).
+  // Writes the index atomically: magic, version, a header with its checksum, the entries at a
+  // 64-byte aligned offset, and a checksum per 64 MB of entries. Streams; no copy in memory.
   void Save(const std::filesystem::path& path) const;
-  // Replaces the contents with a saved index. Throws std::runtime_error naming the file when it
-  // is damaged, of another version, or made with another vocabulary or other options; the
-  // current contents are kept then.
-  void Load(const std::filesystem::path& path);
+  // Replaces the contents with a saved index, memory-mapping its entries (no copy; the file
+  // may be replaced or removed afterwards). Every checksum is verified (on `threads` threads,
+  // 0 = all cores). Throws std::runtime_error naming the file when it is damaged, of another
+  // version, or made with another vocabulary or other options; the current contents are kept.
+  void Load(const std::filesystem::path& path, int threads = 0);
   // The payload of Save (no framing), for files that embed an index (the ROS map file), and
   // its inverse; Deserialize has Load's checks and guarantees, naming `source` in errors.
   std::string Serialize() const;
   void Deserialize(const char* data, size_t size, const std::string& source);
 
  private:
-  struct Row;
+  void Attach(const char* header, size_t header_size, const char* entries, size_t entries_size,
+              std::shared_ptr<const void> keep_alive, const std::string& source);
+
   uint32_t num_rows_;
   BowOptions options_;
   uint64_t fingerprint_;
+  int query_threads_ = 1;
   mutable std::shared_mutex mutex_;
-  std::vector<Row> rows_;          // guarded by mutex_
+  // One of the two, as options_.compact_postings says; guarded by mutex_.
+  std::unique_ptr<detail::PostingIndex<detail::CompactEntry>> compact_;
+  std::unique_ptr<detail::PostingIndex<detail::PreciseEntry>> precise_;
   std::vector<uint8_t> removed_;   // per image id; guarded by mutex_
   size_t live_ = 0;                // guarded by mutex_
 };

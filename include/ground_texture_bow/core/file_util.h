@@ -3,8 +3,10 @@
 // naming the path and the reason.
 #pragma once
 
+#include <cstddef>
 #include <filesystem>
 #include <initializer_list>
+#include <memory>
 #include <string>
 #include <string_view>
 
@@ -17,6 +19,48 @@ void WriteFileAtomic(const std::filesystem::path& path, const std::string& conte
 // The same for contents given in pieces, written one after the other (no joined copy).
 void WriteFileAtomic(const std::filesystem::path& path,
                      std::initializer_list<std::string_view> pieces);
+
+// A file written in pieces of any number and size, then published atomically: the pieces go
+// to a temporary file next to `path`; Commit() flushes it to disk and renames it over `path`.
+// Destroyed without Commit() (an error, an exception), the temporary is removed and `path` is
+// untouched. Errors throw std::runtime_error naming `path` and the reason.
+class AtomicFileWriter {
+ public:
+  explicit AtomicFileWriter(std::filesystem::path path);
+  ~AtomicFileWriter();
+  AtomicFileWriter(const AtomicFileWriter&) = delete;
+  AtomicFileWriter& operator=(const AtomicFileWriter&) = delete;
+  void Write(const void* data, size_t size);
+  void Write(std::string_view piece) { Write(piece.data(), piece.size()); }
+  size_t written() const { return written_; }
+  void Commit();
+
+ private:
+  [[noreturn]] void Fail(const std::string& why);
+  std::filesystem::path path_;
+  std::filesystem::path tmp_;
+  int fd_ = -1;
+  size_t written_ = 0;
+};
+
+// A whole file mapped read-only into memory (mmap, pages read on first touch and shared with
+// the page cache). The mapping stays valid while the object lives, even if the file is
+// replaced (renamed over) or deleted meanwhile.
+class MappedFile {
+ public:
+  // Throws std::runtime_error naming the path when it cannot be opened or mapped.
+  static std::shared_ptr<const MappedFile> Open(const std::filesystem::path& path);
+  ~MappedFile();
+  MappedFile(const MappedFile&) = delete;
+  MappedFile& operator=(const MappedFile&) = delete;
+  const char* data() const { return data_; }
+  size_t size() const { return size_; }
+
+ private:
+  MappedFile(const char* data, size_t size) : data_(data), size_(size) {}
+  const char* data_;
+  size_t size_;
+};
 
 // Reads a whole file; throws std::runtime_error naming the path when it cannot be read.
 std::string ReadFile(const std::filesystem::path& path);
