@@ -1,5 +1,8 @@
 #include "ground_texture_bow/core/bow.h"
 
+#include <exception>
+#include <thread>
+
 #include <algorithm>
 #include <cmath>
 #include <stdexcept>
@@ -96,7 +99,31 @@ BowVector BowEncoder::Encode(const ImageFeatures& f) const {
   if (f.size() > 65535) throw std::invalid_argument("BowEncoder: more than 65535 keypoints");
   const int r = options_.soft_assignment;
   std::vector<WordHit> hits;
-  vocabulary_.Assign(f.descriptors, r, &hits);
+  const int parts = std::min<int>(threads_, static_cast<int>(f.size() / kMinDescriptorsPerThread));
+  if (parts <= 1) {
+    vocabulary_.Assign(f.descriptors, r, &hits);
+  } else {
+    // Descriptor assignment split over threads: each assigns a contiguous range of rows.
+    std::vector<std::vector<WordHit>> part(parts);
+    std::vector<std::thread> pool;
+    std::vector<std::exception_ptr> errors(parts);
+    auto run = [&](int t) {
+      try {
+        const int b = static_cast<int>(f.size() * t / parts), e = static_cast<int>(f.size() * (t + 1) / parts);
+        vocabulary_.Assign(f.descriptors.rowRange(b, e), r, &part[t]);
+      } catch (...) {
+        errors[t] = std::current_exception();
+      }
+    };
+    for (int t = 1; t < parts; ++t) pool.emplace_back(run, t);
+    run(0);
+    for (auto& th : pool) th.join();
+    for (auto& e : errors) {
+      if (e) std::rethrow_exception(e);
+    }
+    hits.reserve(f.size() * r);
+    for (const auto& p : part) hits.insert(hits.end(), p.begin(), p.end());
+  }
   const uint32_t v = vocabulary_.size();
   const double inv_two_sigma2 = 1.0 / (2.0 * options_.sigma * options_.sigma);
   std::vector<KeypointEntry>& kps = out.keypoints;
@@ -117,6 +144,14 @@ BowVector BowEncoder::Encode(const ImageFeatures& f) const {
                      static_cast<float>(a)});
     }
   }
+  return FromAssignments(std::move(out), f.size());
+}
+
+BowVector BowEncoder::FromAssignments(BowVector out, size_t num_keypoints) const {
+  std::vector<KeypointEntry>& kps = out.keypoints;
+  const uint32_t v = vocabulary_.size();
+  out.entries.clear();
+  if (num_keypoints == 0) return out;
   std::sort(kps.begin(), kps.end(), [](const KeypointEntry& a, const KeypointEntry& b) {
     return a.row != b.row ? a.row < b.row : a.keypoint < b.keypoint;
   });
@@ -130,7 +165,7 @@ BowVector BowEncoder::Encode(const ImageFeatures& f) const {
     double tf = 0.0;
     while (e < kps.size() && kps[e].row == kps[b].row) tf += kps[e++].assignment;
     const float idf_w = idf.empty() ? 1.0f : idf[kps[b].row % v];
-    const double weight = tf / static_cast<double>(f.size()) * idf_w;
+    const double weight = tf / static_cast<double>(num_keypoints) * idf_w;
     if (weight > 0.0) {
       out.entries.push_back({kps[b].row, static_cast<float>(weight)});
       norm += options_.scoring == Scoring::kDot ? weight * weight : weight;

@@ -25,6 +25,7 @@ void LocalizerOptions::Check() const {
   if (!(meters_per_pixel > 0.0) || !std::isfinite(meters_per_pixel)) {
     throw std::invalid_argument("meters_per_pixel must be positive and finite");
   }
+  if (threads < 1 || threads > 64) throw std::invalid_argument("threads must be in 1..64");
 }
 
 Localizer::Localizer(std::shared_ptr<Vocabulary> vocabulary, std::string vocabulary_path,
@@ -44,8 +45,10 @@ Localizer::Localizer(std::shared_ptr<Vocabulary> vocabulary, std::string vocabul
   vocabulary_->set_search(vo.ann, vo.nprobe);
   vocabulary_->set_checks(vo.checks);
   encoder_ = std::make_unique<BowEncoder>(*vocabulary_, options_.retrieval.bow);
+  encoder_->set_threads(options_.threads);
   database_ = std::make_unique<BowDatabase>(encoder_->num_rows(), options_.retrieval.bow,
                                             vocabulary_->fingerprint());
+  database_->set_query_threads(options_.threads);
 }
 
 ImageGeometry Localizer::GeometryOf(int width, int height) const {
@@ -262,6 +265,7 @@ void Localizer::Load(const std::filesystem::path& path) {
   const std::string db_blob = r.GetString(payload.size());
   auto db = std::make_unique<BowDatabase>(encoder_->num_rows(), options_.retrieval.bow,
                                           vocabulary_->fingerprint());
+  db->set_query_threads(options_.threads);
   db->Deserialize(db_blob.data(), db_blob.size(), source + " (database)");
   const uint64_t n = r.Get<uint64_t>();
   if (n != db->next_id()) r.Fail("keyframe count does not match the database");
@@ -301,6 +305,7 @@ void Localizer::Load(const std::filesystem::path& path) {
 void Localizer::Reset() {
   auto db = std::make_unique<BowDatabase>(encoder_->num_rows(), options_.retrieval.bow,
                                           vocabulary_->fingerprint());
+  db->set_query_threads(options_.threads);
   std::unique_lock<std::shared_mutex> lock(mutex_);
   database_ = std::move(db);
   keyframes_.clear();

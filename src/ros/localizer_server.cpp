@@ -43,6 +43,7 @@ void ServerOptions::Check() const {
   need(!map_frame.empty(), "~map_frame must not be empty");
   need(transport == "raw" || transport == "compressed", "~transport must be raw or compressed");
   need(meters_per_pixel > 0 && std::isfinite(meters_per_pixel), "~meters_per_pixel must be > 0");
+  need(threads >= 1 && threads <= 64, "~threads must be in 1..64");
   need(tf_timeout >= 0, "~tf_timeout must be >= 0");
   need(keyframe_min_distance >= 0, "~keyframe_min_distance must be >= 0");
   need(keyframe_min_angle >= 0, "~keyframe_min_angle must be >= 0");
@@ -67,6 +68,7 @@ ServerOptions ReadOptions(const ros::NodeHandle& pnh) {
   pnh.param("camera_frame", o.camera_frame, o.camera_frame);
   pnh.param("transport", o.transport, o.transport);
   pnh.param("meters_per_pixel", o.meters_per_pixel, o.meters_per_pixel);
+  pnh.param("threads", o.threads, o.threads);
   pnh.param("use_tf", o.use_tf, o.use_tf);
   pnh.param("tf_timeout", o.tf_timeout, o.tf_timeout);
   pnh.param("keyframe_min_distance", o.keyframe_min_distance, o.keyframe_min_distance);
@@ -100,6 +102,7 @@ LocalizerServer::LocalizerServer(ros::NodeHandle nh, ros::NodeHandle pnh,
   lo.localization.candidates = options_.candidates;
   lo.localization.pose.min_inliers = options_.min_inliers;
   lo.meters_per_pixel = options_.meters_per_pixel;
+  lo.threads = options_.threads;
   std::shared_ptr<gtbow::Vocabulary> vocab = gtbow::Vocabulary::Load(vocab_path);
   localizer_ = std::make_unique<gtbow::Localizer>(std::move(vocab), vocab_path, lo);
   if (!options_.map.empty()) localizer_->Load(options_.map);

@@ -10,6 +10,7 @@ namespace tools {
 void RegisterSynth(CLI::App& app);
 void RegisterTrainVocab(CLI::App& app);
 void RegisterBenchRetrieval(CLI::App& app);
+void RegisterBenchScaling(CLI::App& app);   // gtbow bench
 void RegisterEval(CLI::App& app);
 void RegisterImagesToBag(CLI::App& app);  // ROS: writes rosbags
 

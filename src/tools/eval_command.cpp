@@ -190,63 +190,17 @@ std::string PresetName(const std::string& file) {
   return file.empty() ? "high_accuracy (built-in defaults)" : fs::path(file).stem().string();
 }
 
-// The vocabulary for a configuration: the given file, or one trained on the dataset's train
-// split (cached under the cache directory, keyed by the training images and options).
 std::unique_ptr<Vocabulary> GetVocabulary(const EvalArgs& a, const RetrievalConfig& c,
                                           const Dataset& ds, std::string* desc) {
-  if (!a.vocab.empty()) {
-    // A given vocabulary serves every preset of its kind and metric; others are trained.
-    auto v = Vocabulary::Load(a.vocab);
-    if (v->kind() == c.vocabulary.kind && v->metric() == c.vocabulary.metric) {
-      *desc = a.vocab;
-      return v;
-    }
-    if (!a.ablation) {
-      throw std::runtime_error(a.vocab + " is a " + VocabularyKindName(v->kind()) + "/" +
-                               MetricName(v->metric()) + " vocabulary; the preset needs " +
-                               VocabularyKindName(c.vocabulary.kind) + "/" +
-                               MetricName(c.vocabulary.metric));
-    }
-  }
-  const auto splits = ds.SplitNames();
-  if (std::find(splits.begin(), splits.end(), "train") == splits.end()) {
-    throw std::runtime_error(a.dataset + ": no train split to train a vocabulary on; give --vocab FILE");
-  }
-  ImageSource src = ImageSource::FromDataset(a.dataset, "train");
-  RetrievalConfig key;
-  key.vocabulary = c.vocabulary;
-  key.vocabulary.threads = 0;
-  // Size thresholds are learned for percentile bins only; other bins share one vocabulary.
-  if (c.bow.size_binning == SizeBinning::kPercentile) key.bow.num_size_bins = c.bow.num_size_bins;
-  const std::string opt = FormatRetrievalConfig(key) + FormatRetrievalConfig(RetrievalConfig{c.features, {}, {}});
-  char name[80];
-  std::snprintf(name, sizeof(name), "vocabulary-%016llx-%016llx.gtvoc",
-                static_cast<unsigned long long>(src.ContentKey()),
-                static_cast<unsigned long long>(Checksum64(opt.data(), opt.size())));
-  const fs::path cached = a.no_cache ? fs::path() : fs::path(a.cache) / name;
-  if (!cached.empty() && fs::exists(cached)) {
-    try {
-      *desc = "trained on the train split (cached " + cached.string() + ")";
-      return Vocabulary::Load(cached);
-    } catch (const std::exception& e) {
-      std::fprintf(stderr, "vocabulary cache: %s; training again\n", e.what());
-    }
-  }
-  const auto feats = ExtractAllCached(src, c.features, a.no_cache ? fs::path() : fs::path(a.cache),
-                                      a.threads, !a.quiet);
-  RetrievalConfig tc = c;
-  tc.vocabulary.threads = a.threads;
-  auto vocab = TrainOnFeatures(tc, feats, !a.quiet);
-  *desc = "trained on the train split (" + std::to_string(src.size()) + " images)";
-  if (!cached.empty()) {
-    try {
-      fs::create_directories(cached.parent_path());
-      vocab->Save(cached);
-    } catch (const std::exception& e) {
-      std::fprintf(stderr, "vocabulary cache: not saved (%s)\n", e.what());
-    }
-  }
-  return vocab;
+  VocabularyRequest r;
+  r.file = a.vocab;
+  r.train_other_kinds = a.ablation;
+  r.dataset = a.dataset;
+  r.cache = a.no_cache ? fs::path() : fs::path(a.cache);
+  r.threads = a.threads;
+  r.progress = !a.quiet;
+  (void)ds;
+  return DatasetVocabulary(r, c, desc);
 }
 
 // Runs f(i) for i in [0, n) on `threads` threads.

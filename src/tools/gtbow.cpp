@@ -19,6 +19,7 @@ int main(int argc, char** argv) {
   gtbow::tools::RegisterSynth(app);
   gtbow::tools::RegisterTrainVocab(app);
   gtbow::tools::RegisterBenchRetrieval(app);
+  gtbow::tools::RegisterBenchScaling(app);
   gtbow::tools::RegisterEval(app);
   gtbow::tools::RegisterImagesToBag(app);
   try {

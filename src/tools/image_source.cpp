@@ -239,5 +239,68 @@ std::vector<BowVector> EncodeAll(const BowEncoder& encoder, const std::vector<Im
   return out;
 }
 
+// The vocabulary for a configuration: the given file, or one trained on the dataset's train
+// split (cached under the cache directory, keyed by the training images and options).
+std::unique_ptr<Vocabulary> DatasetVocabulary(const VocabularyRequest& a, const RetrievalConfig& c,
+                                             std::string* desc) {
+  if (!a.file.empty()) {
+    // A given vocabulary serves every preset of its kind and metric; others are trained.
+    auto v = Vocabulary::Load(a.file);
+    if (v->kind() == c.vocabulary.kind && v->metric() == c.vocabulary.metric) {
+      *desc = a.file;
+      return v;
+    }
+    if (!a.train_other_kinds) {
+      throw std::runtime_error(a.file + " is a " + VocabularyKindName(v->kind()) + "/" +
+                               MetricName(v->metric()) + " vocabulary; the preset needs " +
+                               VocabularyKindName(c.vocabulary.kind) + "/" +
+                               MetricName(c.vocabulary.metric));
+    }
+  }
+  const auto splits = Dataset::Load(a.dataset).SplitNames();
+  if (std::find(splits.begin(), splits.end(), "train") == splits.end()) {
+    throw std::runtime_error(a.dataset + ": no train split to train a vocabulary on; give --vocab FILE");
+  }
+  ImageSource src = ImageSource::FromDataset(a.dataset, "train");
+  RetrievalConfig key;
+  key.vocabulary = c.vocabulary;
+  key.vocabulary.threads = 0;
+  // Size thresholds are learned for percentile bins only; other bins share one vocabulary.
+  if (c.bow.size_binning == SizeBinning::kPercentile) key.bow.num_size_bins = c.bow.num_size_bins;
+  std::string opt = FormatRetrievalConfig(key) + FormatRetrievalConfig(RetrievalConfig{c.features, {}, {}});
+  // The key predates bow.compact_postings, which does not touch the vocabulary: leave the line
+  // out so that vocabularies cached before it stay valid (AKM training is not bit-reproducible).
+  for (size_t at; (at = opt.find("  compact_postings: true\n")) != std::string::npos;) {
+    opt.erase(at, std::strlen("  compact_postings: true\n"));
+  }
+  char name[80];
+  std::snprintf(name, sizeof(name), "vocabulary-%016llx-%016llx.gtvoc",
+                static_cast<unsigned long long>(src.ContentKey()),
+                static_cast<unsigned long long>(Checksum64(opt.data(), opt.size())));
+  const fs::path cached = a.cache.empty() ? fs::path() : a.cache / name;
+  if (!cached.empty() && fs::exists(cached)) {
+    try {
+      *desc = "trained on the train split (cached " + cached.string() + ")";
+      return Vocabulary::Load(cached);
+    } catch (const std::exception& e) {
+      std::fprintf(stderr, "vocabulary cache: %s; training again\n", e.what());
+    }
+  }
+  const auto feats = ExtractAllCached(src, c.features, a.cache, a.threads, a.progress);
+  RetrievalConfig tc = c;
+  tc.vocabulary.threads = a.threads;
+  auto vocab = TrainOnFeatures(tc, feats, a.progress);
+  *desc = "trained on the train split (" + std::to_string(src.size()) + " images)";
+  if (!cached.empty()) {
+    try {
+      fs::create_directories(cached.parent_path());
+      vocab->Save(cached);
+    } catch (const std::exception& e) {
+      std::fprintf(stderr, "vocabulary cache: not saved (%s)\n", e.what());
+    }
+  }
+  return vocab;
+}
+
 }  // namespace tools
 }  // namespace gtbow

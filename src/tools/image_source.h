@@ -65,5 +65,20 @@ std::unique_ptr<Vocabulary> TrainOnFeatures(const RetrievalConfig& config,
 std::vector<BowVector> EncodeAll(const BowEncoder& encoder, const std::vector<ImageFeatures>& features,
                                  int threads, bool progress);
 
+// Where a command gets the vocabulary for a configuration on a dataset.
+struct VocabularyRequest {
+  std::string file;                // a vocabulary file; empty: train on the dataset's train split
+  bool train_other_kinds = false;  // a file of another kind or metric: train instead of failing
+  std::string dataset;
+  std::filesystem::path cache;     // trained vocabularies and features are cached here; empty: no cache
+  int threads = 0;
+  bool progress = true;
+};
+
+// The given file, or one trained on the dataset's train split (cached under the cache
+// directory, keyed by the training images and options). `desc` says which.
+std::unique_ptr<Vocabulary> DatasetVocabulary(const VocabularyRequest& request,
+                                              const RetrievalConfig& config, std::string* desc);
+
 }  // namespace tools
 }  // namespace gtbow

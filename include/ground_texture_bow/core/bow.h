@@ -78,13 +78,24 @@ class BowEncoder {
   int SizeBin(const Keypoint& keypoint) const;
   // The BoW vector of an image's features.
   BowVector Encode(const ImageFeatures& features) const;
+  // The second half of Encode: from `vector.keypoints` holding each keypoint's rows with their
+  // soft-assignment weights (`assignment`; any order) to the finished vector: tf-idf row
+  // weights over `num_keypoints` keypoints, normalisation, contributions, entries sorted by row.
+  // Used by Encode and by the scaling benchmark's synthetic images.
+  BowVector FromAssignments(BowVector vector, size_t num_keypoints) const;
 
   const BowOptions& options() const { return options_; }
   const Vocabulary& vocabulary() const { return vocabulary_; }
+  // Threads one Encode may use for descriptor assignment (1 by default; an image with fewer
+  // than 2 x kMinDescriptorsPerThread keypoints uses one). The result does not depend on it.
+  void set_threads(int threads) { threads_ = threads < 1 ? 1 : threads; }
+  int threads() const { return threads_; }
+  static constexpr int kMinDescriptorsPerThread = 32;
 
  private:
   const Vocabulary& vocabulary_;
   BowOptions options_;
+  int threads_ = 1;
 };
 
 // Percentile thresholds splitting `sizes` into `bins` equally populated bins (bins - 1 values).

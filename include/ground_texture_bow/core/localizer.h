@@ -36,6 +36,8 @@ struct LocalizerOptions {
   RetrievalConfig retrieval;          // features, word search and BoW options (a preset)
   LocalizationOptions localization;   // K candidates verified, RANSAC options
   double meters_per_pixel = 0.00025;  // ground sampling distance, metres per pixel (> 0)
+  int threads = 1;                    // threads one image may use: descriptor assignment and
+                                      // the query's blocks (1..64); answers do not depend on it
 
   // Throws std::invalid_argument naming the first bad field.
   void Check() const;

@@ -50,6 +50,7 @@ struct ServerOptions {
   std::string vocabulary;              // vocabulary file (.gtvoc); or taken from `map`
   std::string preset;                  // retrieval preset YAML (config/high_accuracy.yaml)
   std::string map;                     // map file loaded at start (optional)
+  int threads = 2;                     // threads per image: descriptor assignment, query blocks
   Mode mode = Mode::kMapping;
   std::string map_frame = "map";
   std::string odom_frame = "odom";
