@@ -3,6 +3,8 @@
 #   make test   install dependencies, build in build/ws, run every gtest and rostest
 #   make benchmark  generate the default 32,000-image benchmark (once), evaluate every Table I
 #                   row on it, and write docs/RESULTS.md with the plots
+#   make bench-scaling  the scaling benchmark, 1,000 to 1,000,000 images (real, then synthetic),
+#                   into docs/RESULTS.md
 SHELL := /bin/bash
 # Debian's catkin lives in /usr/bin's python3; a pyenv python3 earlier on PATH cannot see it.
 export PATH := /usr/bin:$(PATH)
@@ -16,7 +18,7 @@ CATKIN    := catkin_make -C $(WS) -DCMAKE_BUILD_TYPE=Release -j$(JOBS)
 BENCH_DATA ?= $(CURDIR)/build/benchmark/asphalt32k
 BENCH_OUT  ?= $(CURDIR)/build/benchmark/eval
 
-.PHONY: deps build demo test benchmark clean
+.PHONY: deps build demo test benchmark bench-scaling bench-data clean
 
 deps:
 	@bash scripts/install_deps.sh
@@ -50,13 +52,22 @@ test: deps ws-src
 # A rendering by an older renderer (synth.yaml's renderer_version) is rendered again.
 RENDERER_VERSION := $(shell grep -oP 'kRendererVersion = \K[0-9]+' include/ground_texture_bow/core/synth/generator.h)
 
-benchmark: build
+bench-data: build
 	@grep -qx "renderer_version: $(RENDERER_VERSION)" $(BENCH_DATA)/synth.yaml 2>/dev/null || \
 	  $(GTBOW) synth --out $(BENCH_DATA) --force --surface asphalt \
 	  --database-images 32000 --train 600 --queries 100 --days 0,30,90,180
+
+benchmark: bench-data
 	@$(GTBOW) eval --dataset $(BENCH_DATA) --ablation --out $(BENCH_OUT)
 	@python3 scripts/write_results.py $(BENCH_OUT) docs
 	@python3 scripts/check_benchmark.py --full $(BENCH_OUT)/results.json
+
+# Memory, insertion, query (one and two threads), save and load from 1,000 to 1,000,000
+# database images, both presets: the 32,085 real benchmark images, then synthetic postings
+# sampled from their statistics (about 25 minutes; needs about 12 GB of RAM and 6 GB of disk).
+bench-scaling: bench-data
+	@$(GTBOW) bench --dataset $(BENCH_DATA) --out build/bench_scaling
+	@python3 scripts/write_scaling.py build/bench_scaling docs
 
 clean:
 	rm -rf build
