@@ -1,6 +1,9 @@
 # ground_texture_bow: the front door.
 #   make demo   install dependencies, build, and run the main job on the built-in default
 #   make test   install dependencies, build in build/ws, run every gtest and rostest
+#   make test-sanitize  the same with AddressSanitizer + UndefinedBehaviorSanitizer (build/ws-asan)
+#   make fuzz   the libFuzzer targets (clang), FUZZ_SECONDS each (default 600)
+#   make soak   10 minutes of a 4x real-time replay through the nodelet with concurrent services
 #   make benchmark  generate the default 32,000-image benchmark (once), evaluate every Table I
 #                   row on it, and write docs/RESULTS.md with the plots
 #   make bench-scaling  the scaling benchmark, 1,000 to 1,000,000 images (real, then synthetic),
@@ -18,7 +21,7 @@ CATKIN    := catkin_make -C $(WS) -DCMAKE_BUILD_TYPE=Release -j$(JOBS)
 BENCH_DATA ?= $(CURDIR)/build/benchmark/asphalt32k
 BENCH_OUT  ?= $(CURDIR)/build/benchmark/eval
 
-.PHONY: deps build demo test benchmark bench-scaling bench-data clean
+.PHONY: deps build demo test test-sanitize fuzz soak benchmark bench-scaling bench-data clean
 
 deps:
 	@bash scripts/install_deps.sh
@@ -45,6 +48,23 @@ demo: build
 
 test: deps ws-src
 	@bash scripts/run_tests.sh "$(WS)" "$(JOBS)"
+
+# Every gtest and rostest again, everything built with ASan + UBSan in its own workspace; any
+# sanitizer report from any process (tests, nodes, the nodelet manager) fails the run.
+ASAN_WS := $(CURDIR)/build/ws-asan
+test-sanitize: deps
+	@bash scripts/link_package.sh "$(CURDIR)" "$(ASAN_WS)/src/ground_texture_bow"
+	@bash scripts/run_tests.sh "$(ASAN_WS)" "$(JOBS)" sanitize
+
+# The file parsers under libFuzzer (test/fuzz): FUZZ_SECONDS per target (default 600), new
+# inputs merged into test/fuzz/corpus.
+fuzz: deps
+	@bash scripts/fuzz.sh
+
+# 10 minutes (SOAK_SECONDS) of a 4x real-time replay through the nodelet with concurrent
+# service calls from a second process; figures into docs/RESULTS.md. Not part of make test.
+soak: build
+	@bash scripts/soak.sh "$(WS)"
 
 # The paper's size: about 32,000 database images of asphalt, query days 0 to 180, a separate
 # training area for the vocabularies (about 15 minutes to render on 2 cores, then about

@@ -13,8 +13,8 @@ import os
 import shutil
 import sys
 
-BEGIN = "<!-- eval:begin -->"
-END = "<!-- eval:end -->"
+from results_section import splice
+
 
 
 def fmt(v, pct=False):
@@ -66,7 +66,7 @@ def main():
     for p in pngs:
         shutil.copyfile(os.path.join(src, p), os.path.join(docs, "results", p))
 
-    lines = [BEGIN, "", "## Evaluation: %s" % res["dataset"]["path"], ""]
+    lines = ["## Evaluation: %s" % res["dataset"]["path"], ""]
     rows = targets(res)
     if rows:
         lines += ["| target | goal | measured | |", "| --- | --- | --- | --- |"]
@@ -76,19 +76,8 @@ def main():
     lines.append("")
     # The summary's own title is replaced by the section heading above.
     body = summary.split("\n", 1)[1] if summary.startswith("# ") else summary
-    lines += [body.replace("\n## ", "\n### "), END, ""]
-    section = "\n".join(lines)
-
-    path = os.path.join(docs, "RESULTS.md")
-    old = open(path).read() if os.path.exists(path) else "# Results\n\n"
-    if BEGIN in old and END in old:
-        new = old[:old.index(BEGIN)] + section + old[old.index(END) + len(END) + 1:]
-    else:
-        new = old.rstrip("\n") + "\n\n" + section
-    tmp = path + ".tmp"
-    with open(tmp, "w") as f:
-        f.write(new)
-    os.replace(tmp, path)
+    lines += [body.replace("\n## ", "\n### ")]
+    path = splice(docs, "eval", "\n".join(lines))
     print("wrote %s (%d plots in %s/results)" % (path, len(pngs), docs))
 
 

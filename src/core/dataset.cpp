@@ -97,12 +97,47 @@ bool ParseDouble(const std::string& s, double* value) {
   return true;
 }
 
+bool IsControl(char c) { return static_cast<unsigned char>(c) < 0x20 || c == 0x7f; }
+
+// Valid UTF-8 without control characters other than tab (YAML text; free-text fields).
+bool IsText(const std::string& s) {
+  for (size_t i = 0; i < s.size();) {
+    const auto c = static_cast<unsigned char>(s[i]);
+    if (c < 0x80) {
+      if (IsControl(s[i]) && c != '\t') return false;
+      ++i;
+      continue;
+    }
+    const int n = (c & 0xE0) == 0xC0 ? 1 : (c & 0xF0) == 0xE0 ? 2 : (c & 0xF8) == 0xF0 ? 3 : -1;
+    if (n < 0 || c == 0xC0 || c == 0xC1 || c > 0xF4 || i + static_cast<size_t>(n) >= s.size()) {
+      return false;
+    }
+    for (int k = 1; k <= n; ++k) {
+      if ((static_cast<unsigned char>(s[i + k]) & 0xC0) != 0x80) return false;
+    }
+    i += static_cast<size_t>(n) + 1;
+  }
+  return true;
+}
+
 void CheckImageName(const std::string& name, const std::string& source, int lineno) {
   if (name.empty()) Fail(source, lineno, "empty image name");
+  if (std::any_of(name.begin(), name.end(), IsControl)) {
+    Fail(source, lineno, "image name '" + name + "' contains a control character");
+  }
   const fs::path p(name);
   if (p.is_absolute()) Fail(source, lineno, "image name '" + name + "' must be relative");
   for (const auto& part : p) {
     if (part == "..") Fail(source, lineno, "image name '" + name + "' leaves images/");
+  }
+}
+
+// A split name names the file sequences/<name>.txt: one plain file name.
+void CheckSplitName(const std::string& name, const std::string& source, int lineno) {
+  if (name.empty() || name == "." || name == ".." || !IsText(name) || name.find('\t') != std::string::npos ||
+      name.find_first_of("/\\") != std::string::npos) {
+    Fail(source, lineno, "query_days: '" + name + "' is not a split name (a plain file name "
+                         "under sequences/, UTF-8 text without '/' or control characters)");
   }
 }
 
@@ -122,10 +157,25 @@ T YamlScalar(const YAML::Node& root, const std::string& key, const std::string& 
   }
 }
 
+// A CSV field as SplitCsv reads it back: quoted (quotes doubled) when it holds a comma, a
+// quote or a '#', or begins or ends with white space.
+std::string CsvField(const std::string& v) {
+  if (v.find_first_of(",\"#") == std::string::npos && v == Trim(v)) return v;
+  std::string out = "\"";
+  for (const char c : v) {
+    if (c == '"') out += '"';
+    out += c;
+  }
+  return out + "\"";
+}
+
+// Fixed-point with `digits` decimals, however large the value (%f of 1e300 has 301 digits).
 std::string FormatDouble(double v, int digits) {
-  char buf[64];
-  std::snprintf(buf, sizeof(buf), "%.*f", digits, v);
-  return buf;
+  const int n = std::snprintf(nullptr, 0, "%.*f", digits, v);
+  std::string out(static_cast<size_t>(n) + 1, '\0');
+  std::snprintf(&out[0], out.size(), "%.*f", digits, v);
+  out.resize(static_cast<size_t>(n));
+  return out;
 }
 
 }  // namespace
@@ -145,8 +195,16 @@ DatasetInfo ParseDatasetYaml(const std::string& text, const std::string& source)
          "unsupported format_version " + std::to_string(info.format_version) +
              " (this reader supports 1)");
   }
-  if (root["name"] && root["name"].IsScalar()) info.name = root["name"].Scalar();
-  if (root["surface"] && root["surface"].IsScalar()) info.surface = root["surface"].Scalar();
+  for (const auto& [key, field] : {std::pair<const char*, std::string*>{"name", &info.name},
+                                   {"surface", &info.surface}}) {
+    const YAML::Node node = root[key];
+    if (!node || !node.IsScalar()) continue;
+    if (!IsText(node.Scalar())) {
+      Fail(source, YamlLine(node), std::string("'") + key +
+                                       "' must be UTF-8 text without control characters");
+    }
+    *field = node.Scalar();
+  }
   info.geometry.width = YamlScalar<int>(root, "image_width", source, "a positive integer");
   info.geometry.height = YamlScalar<int>(root, "image_height", source, "a positive integer");
   info.geometry.meters_per_pixel =
@@ -167,7 +225,9 @@ DatasetInfo ParseDatasetYaml(const std::string& text, const std::string& source)
     }
     if (days.IsMap()) {
       for (const auto& kv : days) {
+        if (!kv.first.IsScalar()) Fail(source, YamlLine(kv.first), "query_days: a split name must be text");
         const std::string split = kv.first.Scalar();
+        CheckSplitName(split, source, YamlLine(kv.first));
         double d = 0.0;
         if (!kv.second.IsScalar() || !ParseDouble(kv.second.Scalar(), &d)) {
           Fail(source, YamlLine(kv.second), "query_days." + split + " must be a number");
@@ -287,7 +347,7 @@ std::string FormatDatasetYaml(const DatasetInfo& info) {
   if (!info.query_days.empty()) {
     e << YAML::Key << "query_days" << YAML::Value << YAML::Flow << YAML::BeginMap;
     for (const auto& [split, day] : info.query_days) {
-      e << YAML::Key << split << YAML::Value << day;
+      e << YAML::Key << split << YAML::Value << YAML::Precision(17) << day;
     }
     e << YAML::EndMap;
   }
@@ -299,7 +359,7 @@ std::string FormatPosesCsv(const std::vector<PoseRecord>& poses) {
   std::string out = "image,x,y,theta\n";
   out.reserve(poses.size() * 48 + out.size());
   for (const auto& r : poses) {
-    out += r.image;
+    out += CsvField(r.image);
     out += ',';
     out += FormatDouble(r.pose.x, 7);
     out += ',';
@@ -314,6 +374,12 @@ std::string FormatPosesCsv(const std::vector<PoseRecord>& poses) {
 std::string FormatSequence(const std::vector<std::string>& names) {
   std::string out;
   for (const auto& n : names) {
+    // A line is trimmed and '#' starts a comment: such names have no sequence-file form.
+    if (n.empty() || n.find('#') != std::string::npos || n != Trim(n) ||
+        n.find_first_of("\r\n") != std::string::npos) {
+      throw std::invalid_argument("FormatSequence: image name '" + n + "' cannot be written "
+                                  "to a sequence file (empty, '#', or surrounding spaces)");
+    }
     out += n;
     out += '\n';
   }

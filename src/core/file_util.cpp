@@ -1,12 +1,14 @@
 #include "ground_texture_bow/core/file_util.h"
 
 #include <fcntl.h>
+#include <signal.h>
 #include <sys/mman.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
 #include <algorithm>
 #include <cerrno>
+#include <cstdlib>
 #include <cstring>
 #include <fstream>
 #include <random>
@@ -40,9 +42,34 @@ void WriteFileAtomic(const fs::path& path, std::initializer_list<std::string_vie
   out.Commit();
 }
 
+namespace {
+
+// Temporaries are named .<file>.tmp-<pid>-<random>. A writer killed before it could clean up
+// (SIGKILL, power loss) leaves one behind; the next writer of the same file removes those of
+// processes that no longer exist. Never throws.
+void RemoveStaleTemporaries(const fs::path& dir, const std::string& file) noexcept {
+  const std::string prefix = "." + file + ".tmp-";
+  std::error_code ec;
+  for (fs::directory_iterator it(dir, ec), end; !ec && it != end; it.increment(ec)) {
+    const std::string name = it->path().filename().string();
+    if (name.compare(0, prefix.size(), prefix) != 0) continue;
+    char* rest = nullptr;
+    const long pid = std::strtol(name.c_str() + prefix.size(), &rest, 10);
+    if (pid <= 0 || rest == nullptr || *rest != '-') continue;
+    if (::kill(static_cast<pid_t>(pid), 0) != 0 && errno == ESRCH) {
+      std::error_code ignored;
+      fs::remove(it->path(), ignored);
+    }
+  }
+}
+
+}  // namespace
+
 AtomicFileWriter::AtomicFileWriter(fs::path path) : path_(std::move(path)) {
   const fs::path dir = path_.has_parent_path() ? path_.parent_path() : fs::path(".");
-  tmp_ = dir / ("." + path_.filename().string() + ".tmp-" + RandomSuffix());
+  RemoveStaleTemporaries(dir, path_.filename().string());
+  tmp_ = dir / ("." + path_.filename().string() + ".tmp-" + std::to_string(::getpid()) + "-" +
+                RandomSuffix());
   fd_ = ::open(tmp_.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0644);
   if (fd_ < 0) throw std::runtime_error("cannot write '" + path_.string() + "': " + Errno());
 }
@@ -90,6 +117,14 @@ void AtomicFileWriter::Commit() {
     const std::string why = Errno();
     ::unlink(tmp_.c_str());
     throw std::runtime_error("cannot write '" + path_.string() + "': " + why);
+  }
+  // The rename itself is durable once the directory is flushed (best effort: some file
+  // systems refuse fsync on a directory, and the file is complete either way).
+  const fs::path dir = path_.has_parent_path() ? path_.parent_path() : fs::path(".");
+  const int dfd = ::open(dir.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+  if (dfd >= 0) {
+    ::fsync(dfd);
+    ::close(dfd);
   }
 }
 

@@ -60,6 +60,15 @@ ProcessedImage Localizer::Process(const cv::Mat& gray) const {
   if (gray.type() != CV_8UC1) {
     throw std::invalid_argument("expected an 8-bit single-channel image");
   }
+  const std::string size = std::to_string(gray.cols) + "x" + std::to_string(gray.rows);
+  if (gray.cols < kMinImageSide || gray.rows < kMinImageSide) {
+    throw std::invalid_argument("image " + size + " is too small for features (at least " +
+                                std::to_string(kMinImageSide) + " pixels a side)");
+  }
+  if (static_cast<double>(gray.cols) * gray.rows > kMaxImagePixels) {
+    throw std::invalid_argument("image " + size + " has more than " +
+                                std::to_string(kMaxImagePixels / 1000000) + " megapixels");
+  }
   ProcessedImage p;
   // One extractor per call: OpenCV's detectors are not documented as safe to share.
   const FeatureExtractor extractor(options_.retrieval.features);
@@ -289,6 +298,22 @@ void Localizer::Load(const std::filesystem::path& path) {
         bytes.size() != static_cast<size_t>(rows) * cols * (type == CV_8U ? 1 : 4) ||
         k.width <= 0 || k.height <= 0) {
       r.Fail("keyframe " + std::to_string(i) + " is malformed");
+    }
+    const Pose2D& p = k.map_from_camera;
+    if (k.has_pose && !(std::isfinite(p.x) && std::isfinite(p.y) && std::isfinite(p.theta))) {
+      r.Fail("keyframe " + std::to_string(i) + " has a non-finite pose");
+    }
+    for (const Keypoint& kp : k.keypoints) {
+      if (!(std::isfinite(kp.x) && std::isfinite(kp.y) && std::isfinite(kp.angle) &&
+            std::isfinite(kp.size))) {
+        r.Fail("keyframe " + std::to_string(i) + " has a non-finite keypoint");
+      }
+    }
+    // Descriptors as this node's extractor makes them (ORB: 32 bytes; SIFT: 128 floats).
+    const bool sift = options_.retrieval.features.type == FeatureType::kSift;
+    if (rows > 0 && (type != (sift ? CV_32F : CV_8U) || cols != (sift ? 128 : 32))) {
+      r.Fail("keyframe " + std::to_string(i) + " has descriptors of another kind (" +
+             std::to_string(cols) + " columns) than this node's features");
     }
     if (rows > 0) {
       k.descriptors.create(rows, cols, type);

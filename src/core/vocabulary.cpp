@@ -977,12 +977,26 @@ std::unique_ptr<Vocabulary> MakeVocabularyFromFile(BinaryReader* r, VocabularyKi
         nodes.size() != static_cast<size_t>(rows)) {
       r->Fail("invalid HKM tree");
     }
-    for (const auto& n : nodes) {
-      if (n.first_child >= 0 && (n.num_children < 1 || n.first_child + n.num_children > rows ||
-                                 n.first_child == 0)) {
-        r->Fail("invalid HKM tree node");
+    // Children come after their parent (so a descent ends), every leaf has a word, the words
+    // are 0..W-1 once each (they index the idf table), inner nodes have none.
+    std::vector<uint8_t> seen(nodes.size(), 0);
+    size_t leaves = 0;
+    for (size_t i = 0; i < nodes.size(); ++i) {
+      const auto& n = nodes[i];
+      if (n.first_child >= 0) {
+        if (n.num_children < 1 || static_cast<size_t>(n.first_child) <= i ||
+            static_cast<int64_t>(n.first_child) + n.num_children > rows || n.word >= 0) {
+          r->Fail("invalid HKM tree node " + std::to_string(i));
+        }
+        continue;
       }
-      if (n.first_child < 0 && n.word < 0) r->Fail("HKM leaf without a word");
+      if (n.word < 0 || static_cast<size_t>(n.word) >= nodes.size() || seen[n.word]++) {
+        r->Fail("HKM leaf " + std::to_string(i) + " has an invalid or repeated word id");
+      }
+      ++leaves;
+    }
+    for (size_t w = 0; w < leaves; ++w) {
+      if (!seen[w]) r->Fail("HKM word ids are not 0.." + std::to_string(leaves - 1));
     }
     cv::Mat c(rows, cols, metric == Metric::kHamming ? CV_8U : CV_32F, v.data());
     return std::make_unique<V>(metric, std::move(nodes), c.clone());

@@ -549,6 +549,11 @@ bool LocalizerServer::LocalizeSrv(ground_texture_bow::Localize::Request& req,
 bool LocalizerServer::SaveMap(ground_texture_bow::SaveMap::Request& req,
                               ground_texture_bow::SaveMap::Response& res) {
   res.status = Serve("save_map", true, [&] {
+    if (mode_.load() == Mode::kLocalization) {
+      // Localization mode never writes a file (set_mode mapping or external to save).
+      return MakeStatus(Status::FAILED_PRECONDITION,
+                        "localization mode: the map is read-only and is not saved (set_mode first)");
+    }
     if (req.path.empty()) throw std::invalid_argument("empty path");
     localizer_->Save(req.path);
     return MakeStatus(Status::OK, "saved " + std::to_string(localizer_->size()) +

@@ -121,6 +121,32 @@ TEST(DatasetFormat, CsvRejectsMalformedNamingLine) {
   ExpectError([] { ParsePosesCsv("# only a comment\n", "poses.csv"); }, {"poses.csv", "header"});
 }
 
+// Found by the fuzzers (test/fuzz): split names that are no file name, text that YAML cannot
+// carry, names the CSV writer did not quote, and coordinates too long for a fixed buffer.
+TEST(DatasetFormat, FuzzFindingsAreRejectedOrRoundTrip) {
+  const std::string head = "format_version: 1\nimage_width: 8\nimage_height: 8\nmeters_per_pixel: 1\n";
+  ExpectError([&] { ParseDatasetYaml(head + "query_days: {../../etc: 0}\n", "d.yaml"); },
+              {"d.yaml:5", "not a split name"});
+  ExpectError([&] { ParseDatasetYaml(head + "query_days: {\"a\\0b\": 0}\n", "d.yaml"); },
+              {"not a split name"});
+  ExpectError([&] { ParseDatasetYaml(head + "query_days: {\"\xe0\x30\": 0}\n", "d.yaml"); },
+              {"not a split name"});
+  ExpectError([&] { ParseDatasetYaml(head + "name: \"a\\x01\"\n", "d.yaml"); }, {"d.yaml:5", "'name'"});
+  ExpectError([] { ParsePosesCsv(std::string("image,x,y,theta\na\0.png,1,2,0\n", 29), "p.csv"); },
+              {"p.csv:2", "control character"});
+  const std::vector<PoseRecord> poses = {{"#1, \"odd\".png", {1e300, -2.5e-8, 0.25}},
+                                         {" lead.png", {0, 0, 0}}};
+  const auto back = ParsePosesCsv(FormatPosesCsv(poses), "poses.csv");
+  ASSERT_EQ(back.size(), 2u);
+  EXPECT_EQ(back[0].image, poses[0].image);
+  EXPECT_EQ(back[1].image, poses[1].image);
+  EXPECT_EQ(back[0].pose.x, 1e300);
+  EXPECT_THROW(FormatSequence({"a#b.png"}), std::invalid_argument);
+  DatasetInfo info;
+  info.query_days = {{"query_day030", 30.123456789012345}};
+  EXPECT_EQ(ParseDatasetYaml(FormatDatasetYaml(info), "d.yaml").query_days, info.query_days);
+}
+
 TEST(DatasetFormat, SequenceCommentsAndBlanks) {
   const auto names = ParseSequence("# header\na.png\n\n  b.png  # inline\n#c.png\n", "s.txt");
   ASSERT_EQ(names.size(), 2u);

@@ -7,6 +7,7 @@
 #include <fstream>
 
 #include <gtest/gtest.h>
+#include <opencv2/imgproc.hpp>
 
 #include "ground_texture_bow/core/file_util.h"
 #include "ground_texture_bow/core/synth/generator.h"
@@ -220,6 +221,22 @@ TEST_F(LocalizerFiles, DamagedOrForeignMapsAreRefusedAndTheCurrentMapKept) {
     vocab_file = ReadFile(dir() / "v.gtvoc");
   }
   expect_refused(vocab_file, "a vocabulary file");
+  // A map made with another vocabulary (the fuzzers' 64-word fixture) is refused by name.
+  {
+    LocalizerOptions o = Options();
+    o.retrieval.vocabulary.num_words = 64;
+    Localizer other_vocab(Vocabulary::Load(GTBOW_FUZZ_DATA "/tiny.gtvoc"), "tiny.gtvoc", o);
+    other_vocab.Add(other_vocab.Process(s.db_images[0]), 1, std::nullopt);
+    other_vocab.Save(dir() / "other_vocabulary.gtmap");
+    try {
+      target.Load(dir() / "other_vocabulary.gtmap");
+      ADD_FAILURE() << "loaded a map of another vocabulary";
+    } catch (const std::runtime_error& e) {
+      EXPECT_NE(std::string(e.what()).find("another vocabulary"), std::string::npos) << e.what();
+      EXPECT_NE(std::string(e.what()).find("other_vocabulary.gtmap"), std::string::npos) << e.what();
+    }
+    EXPECT_EQ(target.size(), 1u);
+  }
   // Another preset (other BoW options) is refused with a reason.
   LocalizerOptions other = Options();
   other.retrieval.bow.soft_assignment = 1;
@@ -241,6 +258,25 @@ TEST(Localizer, BadImagesAndPosesGetClearErrors) {
   EXPECT_THROW(loc.Process(cv::Mat()), std::invalid_argument);
   EXPECT_THROW(loc.Process(cv::Mat(48, 64, CV_8UC3, cv::Scalar(1, 2, 3))), std::invalid_argument);
   EXPECT_THROW(loc.Process(cv::Mat(48, 64, CV_16UC1, cv::Scalar(1))), std::invalid_argument);
+  // 1x1 (or any side under 32 pixels) and over 64 megapixels: refused, with the size named.
+  try {
+    loc.Process(cv::Mat(1, 1, CV_8UC1, cv::Scalar(7)));
+    ADD_FAILURE() << "a 1x1 image was accepted";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("1x1"), std::string::npos) << e.what();
+  }
+  EXPECT_THROW(loc.Process(cv::Mat(8001, 8000, CV_8UC1, cv::Scalar(7))), std::invalid_argument);
+  // A 20-megapixel image (5472 x 3648) is processed like any other: the features' budget
+  // bounds its keypoints, and its size is kept for the geometry.
+  {
+    cv::Mat big(3648, 5472, CV_8UC1);
+    cv::resize(s.db_images[0], big, big.size(), 0, 0, cv::INTER_LINEAR);
+    const ProcessedImage p = loc.Process(big);
+    EXPECT_EQ(p.width, 5472);
+    EXPECT_EQ(p.height, 3648);
+    EXPECT_GT(p.features.size(), 0u);
+    EXPECT_LE(p.features.size(), static_cast<size_t>(Options().retrieval.features.num_features));
+  }
   const ProcessedImage blank = loc.Process(cv::Mat(480, 640, CV_8UC1, cv::Scalar(128)));
   EXPECT_EQ(blank.features.size(), 0u);
   const PoseFix fix = loc.Localize(blank);

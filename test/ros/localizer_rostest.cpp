@@ -6,6 +6,14 @@
 //                                    and localizes a later-day run within 4.8 mm and 1.5 deg
 //   bad_input.test     BadInput.*    bad input is counted and reported; nothing is lost
 //   services.test      Services.*    external mode, compressed images, the map services
+//   soak.test          Soak.*        `make soak` only: 10 minutes of 4x replay, concurrent calls
+#include <signal.h>
+
+#include <algorithm>
+#include <atomic>
+#include <random>
+#include <thread>
+#include <iterator>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
@@ -42,6 +50,7 @@
 #include "ground_texture_bow/SetMode.h"
 #include <cv_bridge/cv_bridge.h>
 #include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
 #include <sensor_msgs/CompressedImage.h>
 #include "ground_texture_bow/SaveMap.h"
 #include "ground_texture_bow/Status.h"
@@ -268,6 +277,7 @@ TEST(SaveLoad, AFreshNodeLoadsTheMapAnswersAlikeAndLocalizesALaterDay) {
   ASSERT_EQ(load.response.status.code, Status::OK) << load.response.status.message;
   EXPECT_EQ(load.response.keyframes, Info("/mapper").database_size);
   const std::string bytes = gtbow::ReadFile(map_path);
+  const auto map_mtime = fs::last_write_time(map_path);
 
   // The same answers from both nodes.
   const auto later = ReadBag(g_data + "/localization.bag");
@@ -358,7 +368,20 @@ TEST(SaveLoad, AFreshNodeLoadsTheMapAnswersAlikeAndLocalizesALaterDay) {
   add.request.image = *later[0].image;
   EXPECT_EQ(Call("/localizer/add_keyframe", add).response.status.code, Status::FAILED_PRECONDITION);
   EXPECT_EQ(info.database_size, load.response.keyframes);
+  // Localization mode never writes: save_map and reset are refused, and after the whole run
+  // the map file is byte-identical, not even touched (mtime), and nothing else appeared.
+  ground_texture_bow::SaveMap save_again;
+  save_again.request.path = map_path;
+  EXPECT_EQ(Call("/localizer/save_map", save_again).response.status.code,
+            Status::FAILED_PRECONDITION);
+  ground_texture_bow::Reset reset;
+  EXPECT_EQ(Call("/localizer/reset", reset).response.status.code, Status::FAILED_PRECONDITION);
+  EXPECT_EQ(Info("/localizer").database_size, load.response.keyframes);
   EXPECT_EQ(gtbow::ReadFile(map_path), bytes);
+  EXPECT_EQ(fs::last_write_time(map_path), map_mtime);
+  std::vector<std::string> entries;
+  for (const auto& e : fs::directory_iterator(dir)) entries.push_back(e.path().filename().string());
+  EXPECT_EQ(entries, std::vector<std::string>{"map.gtmap"});
   fs::remove_all(dir);
 }
 
@@ -384,25 +407,74 @@ TEST(BadInput, EachKindIsCountedReportedAndLosesNothing) {
   ASSERT_EQ(Call("/localizer/save_map", save).response.status.code, Status::OK);
   const std::string good_bytes = gtbow::ReadFile(good_path);
 
-  // Wrong encoding, empty image, and an image whose frame has no transform.
-  std::vector<Frame> bad(3, mapping[0]);
-  auto wrong = boost::make_shared<sensor_msgs::Image>(*mapping[0].image);
+  // Bad images on the topic, 1 s apart (the 20-megapixel one last: it takes a while).
+  // Rejected: a wrong encoding, an empty image, a 1x1 image. Processed without a pose (a
+  // missing transform each): a frame without any transform, a stale one (its only transform is
+  // 30 s older than the image), and a NaN one (tf2 refuses NaN transforms). Processed: 20 MP.
+  const sensor_msgs::Image& base = *mapping[0].image;
+  auto variant = [&](double dt, const std::string& frame) {
+    auto img = boost::make_shared<sensor_msgs::Image>(base);
+    img->header.stamp += ros::Duration(dt);
+    if (!frame.empty()) img->header.frame_id = frame;
+    return img;
+  };
+  auto transform_for = [&](const std::string& frame, const ros::Time& stamp, double value) {
+    auto tf = boost::make_shared<tf2_msgs::TFMessage>();
+    geometry_msgs::TransformStamped t;
+    t.header.stamp = stamp;
+    t.header.frame_id = "map";
+    t.child_frame_id = frame;
+    t.transform.translation.x = value;
+    t.transform.rotation.w = 1.0;
+    tf->transforms.push_back(t);
+    return tf;
+  };
+  auto wrong = variant(100, "");
   wrong->encoding = "32FC1";
-  wrong->header.stamp += ros::Duration(100);
-  auto empty = boost::make_shared<sensor_msgs::Image>(*mapping[0].image);
+  auto empty = variant(101, "");
   empty->width = empty->height = 0;
   empty->data.clear();
-  empty->header.stamp += ros::Duration(101);
-  auto no_tf = boost::make_shared<sensor_msgs::Image>(*mapping[0].image);
-  no_tf->header.frame_id = "unknown_camera";
-  no_tf->header.stamp += ros::Duration(102);
-  bad[0].image = wrong;
-  bad[1].image = empty;
-  bad[2].image = no_tf;
-  for (auto& f : bad) f.tf = nullptr;
-  Replay(bad, "/camera/image_raw", "/localizer", 4.0);
+  auto no_tf = variant(102, "unknown_camera");
+  auto tiny = variant(103, "");
+  tiny->width = tiny->height = 1;
+  tiny->step = 1;
+  tiny->data.assign(1, 128);
+  auto stale = variant(104, "stale_camera");
+  auto nan_frame = variant(105, "nan_camera");
+  auto big = variant(106, "");
+  {
+    const cv::Mat small = cv_bridge::toCvCopy(base, "mono8")->image;
+    cv::Mat large;
+    cv::resize(small, large, cv::Size(5472, 3648), 0, 0, cv::INTER_LINEAR);
+    big = boost::make_shared<sensor_msgs::Image>(*cv_bridge::CvImage(big->header, "mono8", large).toImageMsg());
+  }
+  std::vector<Frame> bad;
+  for (const auto& img : {wrong, empty, no_tf, tiny, stale, nan_frame, big}) {
+    Frame f;
+    f.image = img;
+    bad.push_back(f);
+  }
+  bad[4].tf = transform_for("stale_camera", stale->header.stamp - ros::Duration(30), 0.1);
+  bad[5].tf = transform_for("nan_camera", nan_frame->header.stamp, std::nan(""));
+  bad[6].tf = mapping[0].tf;  // the mapping run's camera frame, at an older stamp: stale too
+  const auto before_bad = Info("/localizer");
+  Replay(bad, "/camera/image_raw", "/localizer", 1.0);
   auto info = Info("/localizer");
-  EXPECT_EQ(info.images_rejected, 2u);  // the encoding and the empty image
+  EXPECT_EQ(info.images_rejected, 3u);  // the encoding, the empty and the 1x1 image
+  EXPECT_EQ(info.images_processed - before_bad.images_processed, 4u);  // the others, 20 MP too
+  EXPECT_EQ(info.images_dropped, before_bad.images_dropped);
+  const uint32_t keyframes_now = info.database_size;  // unposed ones may have become keyframes
+
+  // A NaN pose through add_keyframe: refused, nothing inserted.
+  ground_texture_bow::AddKeyframe nan_pose;
+  nan_pose.request.image = base;
+  nan_pose.request.has_pose = true;
+  nan_pose.request.pose.x = std::nan("");
+  nan_pose = Call("/localizer/add_keyframe", nan_pose);
+  EXPECT_EQ(nan_pose.response.status.code, Status::INVALID_ARGUMENT);
+  EXPECT_NE(nan_pose.response.status.message.find("non-finite"), std::string::npos)
+      << nan_pose.response.status.message;
+  EXPECT_EQ(Info("/localizer").database_size, keyframes_now);
 
   // A map path that cannot be written, and a corrupt map: errors, nothing lost.
   ground_texture_bow::SaveMap unwritable;
@@ -413,13 +485,20 @@ TEST(BadInput, EachKindIsCountedReportedAndLosesNothing) {
       << unwritable.response.status.message;
   std::string corrupt = good_bytes;
   corrupt[corrupt.size() / 2] ^= 0x10;
-  gtbow::WriteFileAtomic(dir / "corrupt.gtmap", corrupt);
-  ground_texture_bow::LoadMap load;
-  load.request.path = (dir / "corrupt.gtmap").string();
-  load = Call("/localizer/load_map", load);
-  EXPECT_EQ(load.response.status.code, Status::INVALID_ARGUMENT);
-  EXPECT_NE(load.response.status.message.find("corrupt.gtmap"), std::string::npos)
-      << load.response.status.message;
+  // A corrupt, a truncated and a foreign map file (the vocabulary): refused by name.
+  const std::pair<std::string, std::string> bad_maps[] = {
+      {"corrupt.gtmap", corrupt},
+      {"truncated.gtmap", good_bytes.substr(0, good_bytes.size() / 2)},
+      {"foreign.gtmap", gtbow::ReadFile(g_data + "/vocab.gtvoc")}};
+  for (const auto& [name, bytes] : bad_maps) {
+    gtbow::WriteFileAtomic(dir / name, bytes);
+    ground_texture_bow::LoadMap load;
+    load.request.path = (dir / name).string();
+    load = Call("/localizer/load_map", load);
+    EXPECT_EQ(load.response.status.code, Status::INVALID_ARGUMENT) << name;
+    EXPECT_NE(load.response.status.message.find(name), std::string::npos)
+        << load.response.status.message;
+  }
   // A bad image through a service.
   ground_texture_bow::QueryCandidates q;
   q.request.image = *wrong;
@@ -429,9 +508,9 @@ TEST(BadInput, EachKindIsCountedReportedAndLosesNothing) {
 
   // Still alive, map intact in memory and on disk, counters and diagnostics tell the story.
   info = Info("/localizer");
-  EXPECT_EQ(info.database_size, keyframes);
-  EXPECT_EQ(info.images_rejected, 2u);
-  EXPECT_EQ(info.requests_rejected, 3u);  // save, load, query
+  EXPECT_EQ(info.database_size, keyframes_now);
+  EXPECT_EQ(info.images_rejected, 3u);
+  EXPECT_EQ(info.requests_rejected, 6u);  // NaN pose, save, three loads, query
   EXPECT_EQ(gtbow::ReadFile(good_path), good_bytes);
   const ros::WallTime end = ros::WallTime::now() + ros::WallDuration(5);
   // The localizer's latest diagnostic status, its values by key.
@@ -454,11 +533,11 @@ TEST(BadInput, EachKindIsCountedReportedAndLosesNothing) {
     ros::WallDuration(0.2).sleep();
     values = latest(&status);
     const std::string& missing = values["missing transforms"];
-    seen = !missing.empty() && std::stoi(missing) >= 1 && values["rejected images"] == "2" &&
-           values["rejected requests"] == "3";
+    seen = !missing.empty() && std::stoi(missing) >= 4 && values["rejected images"] == "3" &&
+           values["rejected requests"] == "6";
   }
   EXPECT_TRUE(seen) << "diagnostics do not report the rejected images and requests and the "
-                       "missing transform";
+                       "missing transforms (no transform, stale, NaN, stale)";
   EXPECT_EQ(status.level, diagnostic_msgs::DiagnosticStatus::WARN);
   fs::remove_all(dir);
 }
@@ -607,6 +686,254 @@ TEST(Services, ExternalModeCompressedImagesAndMapServices) {
 }
 
 }  // namespace
+
+// ---------------------------------------------------------------------------------------------
+// Soak (test/ros/soak.test, `make soak`; not in CI): rosbag play --loop --rate 4 feeds the
+// nodelet in mapping mode for ~seconds while this process calls every read service and
+// save_map concurrently. Passes when the manager never dies, no call fails or hangs, images
+// keep being processed, and the manager's memory grows no more than the map does.
+
+// The resident set of the process whose command line holds `needle` (0 when none).
+pid_t FindProcess(const std::string& needle) {
+  for (const auto& e : fs::directory_iterator("/proc")) {
+    const std::string name = e.path().filename().string();
+    if (name.find_first_not_of("0123456789") != std::string::npos) continue;
+    std::ifstream f(e.path() / "cmdline", std::ios::binary);
+    std::string cmd((std::istreambuf_iterator<char>(f)), std::istreambuf_iterator<char>());
+    std::replace(cmd.begin(), cmd.end(), '\0', ' ');
+    if (cmd.find(needle) != std::string::npos && cmd.find("localizer_rostest") == std::string::npos) {
+      return static_cast<pid_t>(std::stol(name));
+    }
+  }
+  return 0;
+}
+
+double RssMb(pid_t pid) {
+  std::ifstream f("/proc/" + std::to_string(pid) + "/status");
+  std::string line;
+  while (std::getline(f, line)) {
+    if (line.rfind("VmRSS:", 0) == 0) return std::stod(line.substr(6)) / 1024.0;
+  }
+  return -1.0;
+}
+
+struct CallStats {
+  std::string name;
+  std::atomic<uint64_t> calls{0}, failures{0};
+  std::atomic<double> max_ms{0.0};
+  std::atomic<double> last_done{0.0};  // wall seconds
+  std::vector<double> ms;               // every latency (one writer)
+  std::string last_failure;
+};
+
+TEST(Soak, ReplayAtFourTimesRealTimeWithConcurrentServiceCalls) {
+  ros::NodeHandle pnh("~");
+  double seconds = 600;
+  std::string out = "/tmp/gtbow_soak";
+  pnh.param("seconds", seconds, seconds);
+  pnh.param("out", out, out);
+  fs::create_directories(out);
+  ASSERT_TRUE(ros::service::waitForService("/localizer/get_info", ros::Duration(60)));
+  const pid_t manager = FindProcess("__name:=localizer_manager");
+  ASSERT_GT(manager, 0) << "no localizer_manager process";
+  const auto probes = ReadBag(g_data + "/localization.bag");
+  ASSERT_FALSE(probes.empty());
+  const auto wall = [] { return ros::WallTime::now().toSec(); };
+  const double t0 = wall();
+  std::atomic<bool> stop{false};
+
+  CallStats query, by_id, localize, info_stats, save;
+  query.name = "query_candidates (image, k=5, verified)";
+  by_id.name = "query_candidates (keyframe id)";
+  localize.name = "localize";
+  info_stats.name = "get_info";
+  save.name = "save_map (every 30 s)";
+  auto record = [&](CallStats& st, double start, bool ok, const std::string& why) {
+    const double ms = 1000.0 * (wall() - start);
+    st.calls++;
+    st.ms.push_back(ms);
+    if (ms > st.max_ms) st.max_ms = ms;
+    if (!ok) {
+      st.failures++;
+      st.last_failure = why;
+    }
+    st.last_done = wall();
+  };
+  std::vector<std::thread> callers;
+  callers.emplace_back([&] {
+    for (size_t i = 0; !stop; ++i) {
+      ground_texture_bow::QueryCandidates q;
+      q.request.image = *probes[i % probes.size()].image;
+      q.request.k = 5;
+      q.request.verify = true;
+      const double s0 = wall();
+      const bool ok = ros::service::call("/localizer/query_candidates", q);
+      record(query, s0, ok && q.response.status.code == Status::OK, q.response.status.message);
+    }
+  });
+  callers.emplace_back([&] {
+    std::mt19937 rng(1);
+    while (!stop) {
+      ground_texture_bow::GetInfo gi;
+      ros::service::call("/localizer/get_info", gi);
+      ground_texture_bow::QueryCandidates q;
+      q.request.use_keyframe_id = true;
+      q.request.keyframe_id = gi.response.database_size > 0 ? rng() % gi.response.database_size : 0;
+      q.request.k = 5;
+      q.request.verify = true;
+      const double s0 = wall();
+      const bool ok = ros::service::call("/localizer/query_candidates", q);
+      // NOT_FOUND only for an empty map.
+      record(by_id, s0, ok && (q.response.status.code == Status::OK ||
+                               (gi.response.database_size == 0 && q.response.status.code == Status::NOT_FOUND)),
+             q.response.status.message);
+    }
+  });
+  callers.emplace_back([&] {
+    for (size_t i = 0; !stop; ++i) {
+      ground_texture_bow::Localize l;
+      l.request.image = *probes[(i * 7) % probes.size()].image;
+      const double s0 = wall();
+      const bool ok = ros::service::call("/localizer/localize", l);
+      // NOT_FOUND: answered, but no candidate verified (a fix needs posed keyframes nearby).
+      record(localize, s0, ok && (l.response.status.code == Status::OK ||
+                                  l.response.status.code == Status::NOT_FOUND),
+             l.response.status.message);
+    }
+  });
+  callers.emplace_back([&] {
+    while (!stop) {
+      ground_texture_bow::GetInfo gi;
+      const double s0 = wall();
+      const bool ok = ros::service::call("/localizer/get_info", gi);
+      record(info_stats, s0, ok && gi.response.status.code == Status::OK, gi.response.status.message);
+      ros::WallDuration(0.1).sleep();
+    }
+  });
+  callers.emplace_back([&] {
+    double next = wall() + 30;
+    save.last_done = wall();
+    while (!stop) {
+      if (wall() < next) {
+        ros::WallDuration(0.2).sleep();
+        save.last_done = wall();  // idle is not hung
+        continue;
+      }
+      next += 30;
+      ground_texture_bow::SaveMap sm;
+      sm.request.path = out + "/soak.gtmap";
+      const double s0 = wall();
+      const bool ok = ros::service::call("/localizer/save_map", sm);
+      record(save, s0, ok && sm.response.status.code == Status::OK, sm.response.status.message);
+    }
+  });
+
+  // Every second: the manager's memory and the node's counters.
+  struct Sample {
+    double t, rss_mb;
+    uint32_t keyframes;
+    uint64_t received, processed, dropped, rejected;
+  };
+  std::vector<Sample> samples;
+  bool hung = false, died = false;
+  while (wall() - t0 < seconds) {
+    ros::WallDuration(1.0).sleep();
+    const double now = wall();
+    if (::kill(manager, 0) != 0) {
+      died = true;
+      break;
+    }
+    for (CallStats* st : {&query, &by_id, &localize, &info_stats, &save}) {
+      if (st->last_done > 0 && now - st->last_done > 60) {
+        ADD_FAILURE() << st->name << ": no answer for 60 s (deadlock?)";
+        hung = true;
+      }
+    }
+    if (hung) break;
+    ground_texture_bow::GetInfo gi;
+    if (!ros::service::call("/localizer/get_info", gi)) continue;
+    const auto& r = gi.response;
+    samples.push_back({now - t0, RssMb(manager), r.database_size, r.images_received,
+                       r.images_processed, r.images_dropped, r.images_rejected});
+    if (samples.size() % 60 == 0) {
+      std::printf("soak %4.0f s: %u keyframes, %llu images processed, RSS %.0f MB\n", now - t0,
+                  r.database_size, static_cast<unsigned long long>(r.images_processed),
+                  samples.back().rss_mb);
+      std::fflush(stdout);
+    }
+  }
+  stop = true;
+  if (hung || died) {
+    ADD_FAILURE() << (died ? "the nodelet manager died" : "a service hung");
+    std::fflush(nullptr);
+    std::_Exit(1);  // a hung call cannot be joined
+  }
+  for (auto& th : callers) th.join();
+  ASSERT_GE(samples.size(), 10u);
+
+  // The map at the end, and memory growth against map growth after a one-minute warm-up.
+  ground_texture_bow::SaveMap final_save;
+  final_save.request.path = out + "/soak.gtmap";
+  ASSERT_EQ(Call("/localizer/save_map", final_save).response.status.code, Status::OK);
+  const double map_mb = static_cast<double>(fs::file_size(out + "/soak.gtmap")) / (1024.0 * 1024.0);
+  const Sample& last = samples.back();
+  const Sample& warm = *std::find_if(samples.begin(), samples.end(),
+                                     [&](const Sample& s) { return s.t >= std::min(60.0, seconds / 4); });
+  const double map_growth_mb = map_mb * (last.keyframes - warm.keyframes) / std::max<uint32_t>(last.keyframes, 1);
+  const double rss_growth_mb = last.rss_mb - warm.rss_mb;
+  double peak = 0;
+  for (const Sample& s : samples) peak = std::max(peak, s.rss_mb);
+  const double allowed_mb = 2.0 * map_growth_mb + 64.0;
+  EXPECT_LE(rss_growth_mb, allowed_mb) << "memory grew " << rss_growth_mb << " MB while the map grew "
+                                       << map_growth_mb << " MB";
+  // Images kept flowing: every minute saw processing.
+  for (size_t i = 60; i < samples.size(); i += 60) {
+    EXPECT_GT(samples[i].processed, samples[i - 60].processed) << "no image processed in minute " << i / 60;
+  }
+  for (CallStats* st : {&query, &by_id, &localize, &info_stats}) {
+    EXPECT_GT(st->calls, 10u) << st->name;
+  }
+  for (CallStats* st : {&query, &by_id, &localize, &info_stats, &save}) {
+    EXPECT_EQ(st->failures, 0u) << st->name << ": " << st->last_failure;
+  }
+
+  // Results for docs/RESULTS.md (scripts/write_soak.py).
+  auto pct = [](std::vector<double> v, double p) {
+    if (v.empty()) return 0.0;
+    std::sort(v.begin(), v.end());
+    return v[std::min(v.size() - 1, static_cast<size_t>(p * (v.size() - 1) + 0.5))];
+  };
+  std::ofstream js(out + "/soak.json");
+  js << "{\n  \"seconds\": " << (last.t) << ",\n  \"rate\": 4,\n  \"images_received\": " << last.received
+     << ",\n  \"images_processed\": " << last.processed << ",\n  \"images_dropped\": " << last.dropped
+     << ",\n  \"images_rejected\": " << last.rejected << ",\n  \"keyframes\": " << last.keyframes
+     << ",\n  \"map_mb\": " << map_mb << ",\n  \"rss_warm_mb\": " << warm.rss_mb
+     << ",\n  \"rss_end_mb\": " << last.rss_mb << ",\n  \"rss_peak_mb\": " << peak
+     << ",\n  \"rss_growth_mb\": " << rss_growth_mb << ",\n  \"map_growth_mb\": " << map_growth_mb
+     << ",\n  \"allowed_growth_mb\": " << allowed_mb << ",\n  \"warmup_s\": " << warm.t
+     << ",\n  \"services\": [\n";
+  bool first = true;
+  for (CallStats* st : {&query, &by_id, &localize, &info_stats, &save}) {
+    js << (first ? "" : ",\n") << "    {\"name\": \"" << st->name << "\", \"calls\": " << st->calls
+       << ", \"failures\": " << st->failures << ", \"median_ms\": " << pct(st->ms, 0.5)
+       << ", \"p99_ms\": " << pct(st->ms, 0.99) << ", \"max_ms\": " << st->max_ms.load() << "}";
+    first = false;
+  }
+  js << "\n  ],\n  \"samples\": [\n";
+  for (size_t i = 0; i < samples.size(); ++i) {
+    const Sample& s = samples[i];
+    js << "    [" << s.t << ", " << s.rss_mb << ", " << s.keyframes << ", " << s.processed << ", "
+       << s.dropped << "]" << (i + 1 < samples.size() ? ",\n" : "\n");
+  }
+  js << "  ]\n}\n";
+  std::printf("soak: %.0f s, %llu images processed, %u keyframes (map %.1f MB), RSS %.0f -> %.0f MB "
+              "(growth %.1f MB, allowed %.1f MB), %llu + %llu + %llu + %llu service calls, 0 failed\n",
+              last.t, static_cast<unsigned long long>(last.processed), last.keyframes, map_mb, warm.rss_mb,
+              last.rss_mb, rss_growth_mb, allowed_mb, static_cast<unsigned long long>(query.calls.load()),
+              static_cast<unsigned long long>(by_id.calls.load()),
+              static_cast<unsigned long long>(localize.calls.load()),
+              static_cast<unsigned long long>(info_stats.calls.load()));
+}
 
 int main(int argc, char** argv) {
   ::testing::InitGoogleTest(&argc, argv);

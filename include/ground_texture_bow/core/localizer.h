@@ -100,8 +100,14 @@ class Localizer {
   Localizer(const Localizer&) = delete;
   Localizer& operator=(const Localizer&) = delete;
 
-  // Extracts features and encodes them. Throws std::invalid_argument for an empty image or one
-  // that is not 8-bit single-channel; an image without features gives an empty vector.
+  // Image sizes Process accepts: smaller images hold no feature (ORB's border alone is 31
+  // pixels); larger ones would only cost memory and time (a 20-megapixel image is processed).
+  static constexpr int kMinImageSide = 32;
+  static constexpr int kMaxImagePixels = 64000000;
+
+  // Extracts features and encodes them. Throws std::invalid_argument for an empty image, one
+  // that is not 8-bit single-channel, or one outside the sizes above; an image without
+  // features gives an empty vector.
   ProcessedImage Process(const cv::Mat& gray) const;
 
   // Inserts a keyframe; returns its id.
