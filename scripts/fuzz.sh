@@ -60,11 +60,11 @@ for t in "${targets[@]}"; do
     rm -rf "$root/test/fuzz/corpus/$t"
     mv "$merged" "$root/test/fuzz/corpus/$t"
   fi
-  runs=$(grep -oP 'stat::number_of_executed_units: \K[0-9]+' "$out/$t.log" | tail -1)
-  rate=$(grep -oP 'stat::average_exec_per_sec: \K[0-9]+' "$out/$t.log" | tail -1)
+  runs=$(grep -oP 'stat::number_of_executed_units:\s+\K[0-9]+' "$out/$t.log" | tail -1)
+  rate=$(grep -oP 'stat::average_exec_per_sec:\s+\K[0-9]+' "$out/$t.log" | tail -1)
   cov=$(grep -oP '\bcov: \K[0-9]+' "$out/$t.log" | tail -1)
   files=$(find "$root/test/fuzz/corpus/$t" -type f | wc -l)
-  kb=$(du -sk "$root/test/fuzz/corpus/$t" | cut -f1)
+  kb=$(( $(du -sb "$root/test/fuzz/corpus/$t" | cut -f1) / 1024 ))
   result="clean"
   if [ "$rc" -ne 0 ]; then
     result="FAILED (exit $rc, see build/fuzz/$t.log)"; status=1
