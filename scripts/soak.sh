@@ -6,7 +6,7 @@
 set -euo pipefail
 export PATH="/usr/bin:$PATH"
 root="$(cd "$(dirname "$0")/.." && pwd)"
-ws="$1"
+ws="$(cd "$1" && pwd)"
 seconds="${SOAK_SECONDS:-600}"
 out="$root/build/soak"
 make -C "$ws/build" gtbow_rostest_data localizer_rostest ground_texture_bow_nodelet > /dev/null

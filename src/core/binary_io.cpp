@@ -4,6 +4,25 @@
 
 namespace gtbow {
 
+namespace {
+
+constexpr uint64_t kWordMul = 0xff51afd7ed558ccdULL;
+
+inline uint64_t MixWord(uint64_t h, uint64_t w) {
+  h = (h ^ (w * kWordMul)) * 0xc4ceb9fe1a85ec53ULL;
+  return h ^ (h >> 29);
+}
+
+inline uint64_t MixByte(uint64_t h, unsigned char b) { return (h ^ b) * 0x100000001b3ULL; }
+
+inline uint64_t Final(uint64_t h) {
+  h ^= h >> 33;
+  h *= kWordMul;
+  return h ^ (h >> 33);
+}
+
+}  // namespace
+
 uint64_t Checksum64(const void* data, size_t size) {
   const auto* p = static_cast<const unsigned char*>(data);
   uint64_t h = 0x9E3779B97F4A7C15ULL ^ size;
@@ -11,26 +30,64 @@ uint64_t Checksum64(const void* data, size_t size) {
   for (; i + 8 <= size; i += 8) {
     uint64_t w;
     std::memcpy(&w, p + i, 8);
-    h = (h ^ (w * 0xff51afd7ed558ccdULL)) * 0xc4ceb9fe1a85ec53ULL;
-    h ^= h >> 29;
+    h = MixWord(h, w);
   }
-  for (; i < size; ++i) h = (h ^ p[i]) * 0x100000001b3ULL;
-  h ^= h >> 33;
-  h *= 0xff51afd7ed558ccdULL;
-  h ^= h >> 33;
-  return h;
+  for (; i < size; ++i) h = MixByte(h, p[i]);
+  return Final(h);
+}
+
+Checksum64Builder::Checksum64Builder(uint64_t total_size) : h_(0x9E3779B97F4A7C15ULL ^ total_size) {}
+
+void Checksum64Builder::Add(const void* data, size_t size) {
+  const auto* p = static_cast<const unsigned char*>(data);
+  while (size > 0 && partial_ > 0) {  // complete a word begun by an earlier piece
+    word_[partial_++] = *p++;
+    --size;
+    if (partial_ == 8) {
+      uint64_t w;
+      std::memcpy(&w, word_, 8);
+      h_ = MixWord(h_, w);
+      partial_ = 0;
+    }
+  }
+  for (; size >= 8; p += 8, size -= 8) {
+    uint64_t w;
+    std::memcpy(&w, p, 8);
+    h_ = MixWord(h_, w);
+  }
+  std::memcpy(word_ + partial_, p, size);
+  partial_ += size;
+}
+
+uint64_t Checksum64Builder::Finish() {
+  for (size_t i = 0; i < partial_; ++i) h_ = MixByte(h_, word_[i]);
+  partial_ = 0;
+  return Final(h_);
 }
 
 void WriteFramedFile(const std::filesystem::path& path, const char magic[8], uint32_t version,
                      const std::string& payload) {
+  WriteFramedFile(path, magic, version, {std::string_view(payload)});
+}
+
+void WriteFramedFile(const std::filesystem::path& path, const char magic[8], uint32_t version,
+                     std::initializer_list<std::string_view> payload) {
+  uint64_t size = 0;
+  for (const std::string_view& piece : payload) size += piece.size();
   char header[8 + sizeof(uint32_t) + sizeof(uint64_t)];
   std::memcpy(header, magic, 8);
   std::memcpy(header + 8, &version, sizeof(version));
-  const uint64_t size = payload.size();
   std::memcpy(header + 12, &size, sizeof(size));
-  const uint64_t sum = Checksum64(payload.data(), payload.size());
-  WriteFileAtomic(path, {std::string_view(header, sizeof(header)), std::string_view(payload),
-                         std::string_view(reinterpret_cast<const char*>(&sum), sizeof(sum))});
+  AtomicFileWriter file(path);
+  file.Write(header, sizeof(header));
+  Checksum64Builder sum(size);
+  for (const std::string_view& piece : payload) {
+    sum.Add(piece.data(), piece.size());
+    file.Write(piece);
+  }
+  const uint64_t checksum = sum.Finish();
+  file.Write(&checksum, sizeof(checksum));
+  file.Commit();
 }
 
 FramedPayload ReadFramedFile(const std::filesystem::path& path, const char magic[8],

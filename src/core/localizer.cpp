@@ -218,14 +218,18 @@ PoseFix Localizer::Localize(const ProcessedImage& image) const {
 }
 
 void Localizer::Save(const std::filesystem::path& path) const {
-  BinaryWriter w;
+  // Three pieces streamed into the file, so that a save holds one copy of the map (the
+  // database's serialised form and the keyframes), not two.
+  BinaryWriter head, w;
+  std::string database;
   {
     std::shared_lock<std::shared_mutex> lock(mutex_);
-    w.PutString(vocabulary_path_);
-    w.Put<uint64_t>(vocabulary_->fingerprint());
-    w.PutString(FormatRetrievalConfig(options_.retrieval));
-    w.Put<double>(options_.meters_per_pixel);
-    w.PutString(database_->Serialize());
+    head.PutString(vocabulary_path_);
+    head.Put<uint64_t>(vocabulary_->fingerprint());
+    head.PutString(FormatRetrievalConfig(options_.retrieval));
+    head.Put<double>(options_.meters_per_pixel);
+    database = database_->Serialize();
+    head.Put<uint64_t>(database.size());  // the database as one string (PutString's layout)
     w.Put<uint64_t>(keyframes_.size());
     for (const Keyframe& k : keyframes_) {
       w.Put<int64_t>(k.stamp_ns);
@@ -243,7 +247,7 @@ void Localizer::Save(const std::filesystem::path& path) const {
       w.PutArray(d.data, d.empty() ? 0 : d.total() * d.elemSize());
     }
   }
-  WriteFramedFile(path, kMapMagic, kMapVersion, w.buffer());
+  WriteFramedFile(path, kMapMagic, kMapVersion, {head.buffer(), database, w.buffer()});
 }
 
 std::string Localizer::VocabularyPathOf(const std::filesystem::path& path) {

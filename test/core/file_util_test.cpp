@@ -2,12 +2,15 @@
 
 #include <unistd.h>
 
+#include <algorithm>
 #include <filesystem>
 #include <fstream>
+#include <random>
 #include <stdexcept>
 
 #include <gtest/gtest.h>
 
+#include "ground_texture_bow/core/binary_io.h"
 #include "test_util.h"
 
 namespace fs = std::filesystem;
@@ -73,6 +76,34 @@ TEST_F(FileUtil, StagingRejectsFilesAndUnwritableParents) {
   DiscardStagedDirectory(staging);
   EXPECT_FALSE(fs::exists(staging));
   EXPECT_FALSE(fs::exists(dir_ / "fresh"));
+}
+
+TEST(Checksum64Builder, PiecesOfAnySizeGiveTheChecksumOfTheWhole) {
+  std::mt19937 rng(3);
+  for (size_t total : {0u, 1u, 7u, 8u, 9u, 63u, 64u, 1000u}) {
+    std::string bytes(total, '\0');
+    for (char& c : bytes) c = static_cast<char>(rng());
+    for (int trial = 0; trial < 20; ++trial) {
+      Checksum64Builder b(total);
+      size_t at = 0;
+      while (at < total) {
+        const size_t n = std::min<size_t>(total - at, rng() % 13);
+        b.Add(bytes.data() + at, n);
+        at += n;
+      }
+      ASSERT_EQ(b.Finish(), Checksum64(bytes.data(), total)) << total << " bytes";
+    }
+  }
+}
+
+TEST_F(FileUtil, FramedFileWrittenInPiecesReadsBackAsOne) {
+  const char magic[8] = {'T', 'E', 'S', 'T', 'F', 'R', 'M', '\0'};
+  const std::string a = "head", b(100001, 'x'), c = "tail bytes";
+  WriteFramedFile(dir_ / "f.bin", magic, 3, {a, b, c});
+  const FramedPayload p = ReadFramedFile(dir_ / "f.bin", magic, 3, "test");
+  EXPECT_EQ(std::string(p.data(), p.size()), a + b + c);
+  WriteFramedFile(dir_ / "g.bin", magic, 3, a + b + c);
+  EXPECT_EQ(ReadFile(dir_ / "f.bin"), ReadFile(dir_ / "g.bin"));
 }
 
 TEST_F(FileUtil, ReadFileNamesMissingPath) {

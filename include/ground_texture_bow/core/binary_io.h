@@ -7,8 +7,10 @@
 #include <cstdint>
 #include <cstring>
 #include <filesystem>
+#include <initializer_list>
 #include <stdexcept>
 #include <string>
+#include <string_view>
 #include <type_traits>
 #include <vector>
 
@@ -16,6 +18,21 @@ namespace gtbow {
 
 // Fast 64-bit checksum over a byte range (word-wise multiply-xor; not cryptographic).
 uint64_t Checksum64(const void* data, size_t size);
+
+// Checksum64 of bytes given in pieces of any sizes whose total is known up front (it seeds
+// the checksum): Add() the pieces in order, then Finish() equals Checksum64 of their
+// concatenation.
+class Checksum64Builder {
+ public:
+  explicit Checksum64Builder(uint64_t total_size);
+  void Add(const void* data, size_t size);
+  uint64_t Finish();
+
+ private:
+  uint64_t h_;
+  unsigned char word_[8];
+  size_t partial_ = 0;  // bytes in word_
+};
 
 // Appends plain values and arrays to a byte buffer.
 class BinaryWriter {
@@ -91,6 +108,9 @@ class BinaryReader {
 // Writes magic (8 bytes), version, payload size, payload and checksum atomically to `path`.
 void WriteFramedFile(const std::filesystem::path& path, const char magic[8], uint32_t version,
                      const std::string& payload);
+// The same for a payload given in pieces, streamed to the file without a joined copy.
+void WriteFramedFile(const std::filesystem::path& path, const char magic[8], uint32_t version,
+                     std::initializer_list<std::string_view> payload);
 
 // A framed file's contents, with the payload located inside it (no copy of the payload).
 class FramedPayload {
