@@ -99,6 +99,21 @@ bool ParseDouble(const std::string& s, double* value) {
 
 bool IsControl(char c) { return static_cast<unsigned char>(c) < 0x20 || c == 0x7f; }
 
+// A name as it can be shown in a message: control characters as \xNN.
+std::string Printable(const std::string& name) {
+  std::string out;
+  for (const char c : name) {
+    if (IsControl(c)) {
+      char buf[8];
+      std::snprintf(buf, sizeof(buf), "\\x%02x", static_cast<unsigned char>(c));
+      out += buf;
+    } else {
+      out += c;
+    }
+  }
+  return out;
+}
+
 // Valid UTF-8 without control characters other than tab (YAML text; free-text fields).
 bool IsText(const std::string& s) {
   for (size_t i = 0; i < s.size();) {
@@ -123,7 +138,7 @@ bool IsText(const std::string& s) {
 void CheckImageName(const std::string& name, const std::string& source, int lineno) {
   if (name.empty()) Fail(source, lineno, "empty image name");
   if (std::any_of(name.begin(), name.end(), IsControl)) {
-    Fail(source, lineno, "image name '" + name + "' contains a control character");
+    Fail(source, lineno, "image name '" + Printable(name) + "' contains a control character");
   }
   const fs::path p(name);
   if (p.is_absolute()) Fail(source, lineno, "image name '" + name + "' must be relative");
@@ -136,7 +151,7 @@ void CheckImageName(const std::string& name, const std::string& source, int line
 void CheckSplitName(const std::string& name, const std::string& source, int lineno) {
   if (name.empty() || name == "." || name == ".." || !IsText(name) || name.find('\t') != std::string::npos ||
       name.find_first_of("/\\") != std::string::npos) {
-    Fail(source, lineno, "query_days: '" + name + "' is not a split name (a plain file name "
+    Fail(source, lineno, "query_days: '" + Printable(name) + "' is not a split name (a plain file name "
                          "under sequences/, UTF-8 text without '/' or control characters)");
   }
 }
