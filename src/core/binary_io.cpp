@@ -74,20 +74,35 @@ void WriteFramedFile(const std::filesystem::path& path, const char magic[8], uin
                      std::initializer_list<std::string_view> payload) {
   uint64_t size = 0;
   for (const std::string_view& piece : payload) size += piece.size();
+  FramedFileWriter file(path, magic, version, size);
+  for (const std::string_view& piece : payload) file.Write(piece);
+  file.Commit();
+}
+
+FramedFileWriter::FramedFileWriter(const std::filesystem::path& path, const char magic[8],
+                                   uint32_t version, uint64_t payload_size)
+    : file_(std::make_unique<AtomicFileWriter>(path)), sum_(payload_size), size_(payload_size) {
   char header[8 + sizeof(uint32_t) + sizeof(uint64_t)];
   std::memcpy(header, magic, 8);
   std::memcpy(header + 8, &version, sizeof(version));
-  std::memcpy(header + 12, &size, sizeof(size));
-  AtomicFileWriter file(path);
-  file.Write(header, sizeof(header));
-  Checksum64Builder sum(size);
-  for (const std::string_view& piece : payload) {
-    sum.Add(piece.data(), piece.size());
-    file.Write(piece);
-  }
-  const uint64_t checksum = sum.Finish();
-  file.Write(&checksum, sizeof(checksum));
-  file.Commit();
+  std::memcpy(header + 12, &payload_size, sizeof(payload_size));
+  file_->Write(header, sizeof(header));
+}
+
+FramedFileWriter::~FramedFileWriter() = default;
+
+void FramedFileWriter::Write(const void* data, size_t size) {
+  if (written_ + size > size_) throw std::logic_error("FramedFileWriter: more bytes than announced");
+  sum_.Add(data, size);
+  file_->Write(data, size);
+  written_ += size;
+}
+
+void FramedFileWriter::Commit() {
+  if (written_ != size_) throw std::logic_error("FramedFileWriter: fewer bytes than announced");
+  const uint64_t checksum = sum_.Finish();
+  file_->Write(&checksum, sizeof(checksum));
+  file_->Commit();
 }
 
 FramedPayload ReadFramedFile(const std::filesystem::path& path, const char magic[8],

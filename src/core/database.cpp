@@ -591,22 +591,28 @@ uint64_t Get64(const char* p) {
 }  // namespace
 
 std::string BowDatabase::Serialize() const {
+  std::string out;
+  SerializeTo([&out](uint64_t size) { out.reserve(size); },
+              [&out](const void* data, size_t size) { out.append(Bytes(data), size); });
+  return out;
+}
+
+void BowDatabase::SerializeTo(const std::function<void(uint64_t size)>& begin,
+                              const std::function<void(const void* data, size_t size)>& write) const {
   std::shared_lock<std::shared_mutex> lock(mutex_);
   uint64_t entries_bytes = 0;
-  std::string header = compact_ ? SerializeHeader(*compact_, num_rows_, fingerprint_, options_, removed_, &entries_bytes)
-                                : SerializeHeader(*precise_, num_rows_, fingerprint_, options_, removed_, &entries_bytes);
-  std::string out;
-  out.reserve(8 + header.size() + entries_bytes);
+  const std::string header =
+      compact_ ? SerializeHeader(*compact_, num_rows_, fingerprint_, options_, removed_, &entries_bytes)
+               : SerializeHeader(*precise_, num_rows_, fingerprint_, options_, removed_, &entries_bytes);
   const uint64_t hs = header.size();
-  out.append(reinterpret_cast<const char*>(&hs), 8);
-  out += header;
-  auto append = [&out](const void* data, size_t size) { out.append(Bytes(data), size); };
+  begin(8 + hs + entries_bytes);
+  write(&hs, 8);
+  write(header.data(), header.size());
   if (compact_) {
-    WriteEntries(*compact_, append);
+    WriteEntries(*compact_, write);
   } else {
-    WriteEntries(*precise_, append);
+    WriteEntries(*precise_, write);
   }
-  return out;
 }
 
 void BowDatabase::Deserialize(const char* data, size_t size, const std::string& source) {

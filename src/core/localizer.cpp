@@ -217,37 +217,65 @@ PoseFix Localizer::Localize(const ProcessedImage& image) const {
   return fix;
 }
 
+namespace {
+
+// One keyframe's record in the map file, and its size in bytes (to announce the payload's size
+// before streaming it).
+void PutKeyframe(BinaryWriter* w, const Keyframe& k) {
+  w->Put<int64_t>(k.stamp_ns);
+  w->Put<uint8_t>(k.has_pose ? 1 : 0);
+  w->Put<double>(k.map_from_camera.x);
+  w->Put<double>(k.map_from_camera.y);
+  w->Put<double>(k.map_from_camera.theta);
+  w->Put<int32_t>(k.width);
+  w->Put<int32_t>(k.height);
+  PutKeypoints(w, k.keypoints);
+  const cv::Mat d = k.descriptors.isContinuous() ? k.descriptors : k.descriptors.clone();
+  w->Put<int32_t>(d.rows);
+  w->Put<int32_t>(d.cols);
+  w->Put<int32_t>(d.type());
+  w->PutArray(d.data, d.empty() ? 0 : d.total() * d.elemSize());
+}
+
+uint64_t KeyframeBytes(const Keyframe& k) {
+  const uint64_t descriptors = k.descriptors.empty() ? 0 : k.descriptors.total() * k.descriptors.elemSize();
+  return 8 + 1 + 3 * 8 + 2 * 4 + (8 + k.keypoints.size() * sizeof(Keypoint)) + 3 * 4 + (8 + descriptors);
+}
+
+}  // namespace
+
 void Localizer::Save(const std::filesystem::path& path) const {
-  // Three pieces streamed into the file, so that a save holds one copy of the map (the
-  // database's serialised form and the keyframes), not two.
+  // Streamed into the file piece by piece (the database's rows, then one keyframe at a time):
+  // a save needs no second copy of the map in memory.
   BinaryWriter head, w;
-  std::string database;
+  std::unique_ptr<FramedFileWriter> file;
   {
     std::shared_lock<std::shared_mutex> lock(mutex_);
     head.PutString(vocabulary_path_);
     head.Put<uint64_t>(vocabulary_->fingerprint());
     head.PutString(FormatRetrievalConfig(options_.retrieval));
     head.Put<double>(options_.meters_per_pixel);
-    database = database_->Serialize();
-    head.Put<uint64_t>(database.size());  // the database as one string (PutString's layout)
+    uint64_t keyframe_bytes = 8;
+    for (const Keyframe& k : keyframes_) keyframe_bytes += KeyframeBytes(k);
+    database_->SerializeTo(
+        [&](uint64_t database_bytes) {
+          head.Put<uint64_t>(database_bytes);  // the database as one string (PutString's layout)
+          file = std::make_unique<FramedFileWriter>(
+              path, kMapMagic, kMapVersion, head.buffer().size() + database_bytes + keyframe_bytes);
+          file->Write(head.buffer());
+        },
+        [&](const void* data, size_t size) { file->Write(data, size); });
     w.Put<uint64_t>(keyframes_.size());
     for (const Keyframe& k : keyframes_) {
-      w.Put<int64_t>(k.stamp_ns);
-      w.Put<uint8_t>(k.has_pose ? 1 : 0);
-      w.Put<double>(k.map_from_camera.x);
-      w.Put<double>(k.map_from_camera.y);
-      w.Put<double>(k.map_from_camera.theta);
-      w.Put<int32_t>(k.width);
-      w.Put<int32_t>(k.height);
-      PutKeypoints(&w, k.keypoints);
-      const cv::Mat d = k.descriptors.isContinuous() ? k.descriptors : k.descriptors.clone();
-      w.Put<int32_t>(d.rows);
-      w.Put<int32_t>(d.cols);
-      w.Put<int32_t>(d.type());
-      w.PutArray(d.data, d.empty() ? 0 : d.total() * d.elemSize());
+      PutKeyframe(&w, k);
+      if (w.buffer().size() >= (1u << 20)) {
+        file->Write(w.buffer());
+        w.buffer().clear();
+      }
     }
+    file->Write(w.buffer());
   }
-  WriteFramedFile(path, kMapMagic, kMapVersion, {head.buffer(), database, w.buffer()});
+  file->Commit();  // flush and rename without holding the map
 }
 
 std::string Localizer::VocabularyPathOf(const std::filesystem::path& path) {

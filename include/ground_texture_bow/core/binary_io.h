@@ -8,6 +8,7 @@
 #include <cstring>
 #include <filesystem>
 #include <initializer_list>
+#include <memory>
 #include <stdexcept>
 #include <string>
 #include <string_view>
@@ -111,6 +112,26 @@ void WriteFramedFile(const std::filesystem::path& path, const char magic[8], uin
 // The same for a payload given in pieces, streamed to the file without a joined copy.
 void WriteFramedFile(const std::filesystem::path& path, const char magic[8], uint32_t version,
                      std::initializer_list<std::string_view> payload);
+
+// A framed file whose payload of a size known up front is streamed in pieces of any size
+// (no copy of the payload in memory), then published atomically by Commit(), which checks
+// that exactly `payload_size` bytes came. Destroyed without Commit(), nothing changes at `path`.
+class FramedFileWriter {
+ public:
+  FramedFileWriter(const std::filesystem::path& path, const char magic[8], uint32_t version,
+                   uint64_t payload_size);
+  ~FramedFileWriter();
+  FramedFileWriter(const FramedFileWriter&) = delete;
+  FramedFileWriter& operator=(const FramedFileWriter&) = delete;
+  void Write(const void* data, size_t size);
+  void Write(std::string_view piece) { Write(piece.data(), piece.size()); }
+  void Commit();
+
+ private:
+  std::unique_ptr<class AtomicFileWriter> file_;
+  Checksum64Builder sum_;
+  uint64_t size_, written_ = 0;
+};
 
 // A framed file's contents, with the payload located inside it (no copy of the payload).
 class FramedPayload {

@@ -28,6 +28,7 @@
 
 #include <cstdint>
 #include <filesystem>
+#include <functional>
 #include <memory>
 #include <shared_mutex>
 #include <string>
@@ -102,6 +103,10 @@ class BowDatabase {
   // its inverse; Deserialize has Load's checks and guarantees, naming `source` in errors.
   std::string Serialize() const;
   void Deserialize(const char* data, size_t size, const std::string& source);
+  // Serialize's bytes streamed: `begin` gets their total size, then `write` the bytes in
+  // pieces, all under one lock (no copy of the index).
+  void SerializeTo(const std::function<void(uint64_t size)>& begin,
+                   const std::function<void(const void* data, size_t size)>& write) const;
 
  private:
   void Attach(const char* header, size_t header_size, const char* entries, size_t entries_size,
