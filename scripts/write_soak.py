@@ -67,7 +67,9 @@ def main():
     for s in d["services"]:
         lines.append("| %s | %d | %d | %.1f ms | %.1f ms | %.1f ms |"
                      % (s["name"], s["calls"], s["failures"], s["median_ms"], s["p99_ms"], s["max_ms"]))
-    lines += ["", "![soak: memory and map size over time](results/soak.png)"]
+    lines += ["", "![soak: memory and map size over time](results/soak.png)", "",
+              "Memory follows the map; the steps are allocations that grow by doubling (the "
+              "allocator's arenas and the index's row vectors) and are filled afterwards."]
     print("wrote %s" % splice(docs, "soak", "\n".join(lines)))
 
 
