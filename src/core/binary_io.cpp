@@ -107,6 +107,11 @@ void FramedFileWriter::Commit() {
 
 FramedPayload ReadFramedFile(const std::filesystem::path& path, const char magic[8],
                              uint32_t version, const std::string& what) {
+  return ReadFramedFile(path, magic, version, version, what);
+}
+
+FramedPayload ReadFramedFile(const std::filesystem::path& path, const char magic[8],
+                             uint32_t oldest, uint32_t version, const std::string& what) {
   std::string data = ReadFile(path);
   const std::string src = path.string();
   constexpr size_t kHeader = 8 + sizeof(uint32_t) + sizeof(uint64_t);
@@ -119,10 +124,12 @@ FramedPayload ReadFramedFile(const std::filesystem::path& path, const char magic
   }
   uint32_t v;
   std::memcpy(&v, data.data() + 8, sizeof(v));
-  if (v != version) {
+  if (v < oldest || v > version) {
     throw std::runtime_error(src + ": " + what + " format version " + std::to_string(v) +
                              " is not supported (this build reads version " +
-                             std::to_string(version) + ")");
+                             (oldest == version ? std::to_string(version)
+                                                : std::to_string(oldest) + " to " + std::to_string(version)) +
+                             ")");
   }
   uint64_t size;
   std::memcpy(&size, data.data() + 12, sizeof(size));
@@ -134,7 +141,7 @@ FramedPayload ReadFramedFile(const std::filesystem::path& path, const char magic
   if (Checksum64(data.data() + kHeader, size) != sum) {
     throw std::runtime_error(src + ": " + what + " file is corrupt (checksum mismatch)");
   }
-  return FramedPayload(std::move(data), kHeader, size);
+  return FramedPayload(std::move(data), kHeader, size, v);
 }
 
 }  // namespace gtbow

@@ -33,6 +33,14 @@ Scoring ParseScoring(const std::string& name) {
 
 std::string ScoringName(Scoring s) { return s == Scoring::kDot ? "dot" : "dbow_l1"; }
 
+Normalization ParseNormalization(const std::string& name) {
+  if (name == "global") return Normalization::kGlobal;
+  if (name == "per_bin") return Normalization::kPerBin;
+  throw std::invalid_argument("unknown normalization '" + name + "' (valid: global, per_bin)");
+}
+
+std::string NormalizationName(Normalization n) { return n == Normalization::kGlobal ? "global" : "per_bin"; }
+
 void BowOptions::Check() const {
   auto need = [](bool ok, const char* what) {
     if (!ok) throw std::invalid_argument(std::string("bow: ") + what);
@@ -178,8 +186,30 @@ BowVector BowEncoder::FromAssignments(BowVector out, size_t num_keypoints) const
     b = e;
   }
   kps.swap(kept);
+  const bool l2 = options_.scoring == Scoring::kDot;
+  if (options_.normalization == Normalization::kPerBin && options_.SizeBins() > 1) {
+    // Each size bin's part normalised on its own (entries are sorted by row, so a bin's
+    // entries are contiguous), then the whole vector again below.
+    norm = 0.0;
+    for (size_t b = 0; b < out.entries.size();) {
+      const uint32_t bin = out.entries[b].row / v;
+      size_t e = b;
+      double bin_norm = 0.0;
+      for (; e < out.entries.size() && out.entries[e].row / v == bin; ++e) {
+        const double w = out.entries[e].weight;
+        bin_norm += l2 ? w * w : w;
+      }
+      const double scale = bin_norm > 0.0 ? (l2 ? 1.0 / std::sqrt(bin_norm) : 1.0 / bin_norm) : 0.0;
+      for (size_t k = b; k < e; ++k) {
+        out.entries[k].weight = static_cast<float>(out.entries[k].weight * scale);
+        const double w = out.entries[k].weight;
+        norm += l2 ? w * w : w;
+      }
+      b = e;
+    }
+  }
   if (norm > 0.0) {
-    const double scale = options_.scoring == Scoring::kDot ? 1.0 / std::sqrt(norm) : 1.0 / norm;
+    const double scale = l2 ? 1.0 / std::sqrt(norm) : 1.0 / norm;
     for (auto& e : out.entries) e.weight = static_cast<float>(e.weight * scale);
   }
   return out;

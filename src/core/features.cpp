@@ -1,9 +1,12 @@
 #include "ground_texture_bow/core/features.h"
 
+#include <algorithm>
 #include <cmath>
+#include <numeric>
 #include <stdexcept>
 
 #include <opencv2/features2d.hpp>
+#include <opencv2/imgproc.hpp>
 
 namespace gtbow {
 
@@ -14,6 +17,27 @@ FeatureType ParseFeatureType(const std::string& name) {
 }
 
 std::string FeatureTypeName(FeatureType type) { return type == FeatureType::kOrb ? "orb" : "sift"; }
+
+Contrast ParseContrast(const std::string& name) {
+  if (name == "none") return Contrast::kNone;
+  if (name == "normalize") return Contrast::kNormalize;
+  if (name == "clahe") return Contrast::kClahe;
+  throw std::invalid_argument("unknown contrast '" + name + "' (valid: none, normalize, clahe)");
+}
+
+std::string ContrastName(Contrast c) {
+  switch (c) {
+    case Contrast::kNone: return "none";
+    case Contrast::kNormalize: return "normalize";
+    case Contrast::kClahe: return "clahe";
+  }
+  return "?";
+}
+
+bool IsPlainExtractor(const FeatureOptions& o) {
+  return o.contrast == Contrast::kNone && o.orb_min_fast_threshold == 0 && o.grid_cols == 0 &&
+         o.grid_rows == 0;
+}
 
 void FeatureOptions::Check() const {
   auto need = [](bool ok, const char* what) {
@@ -27,6 +51,17 @@ void FeatureOptions::Check() const {
   need(orb_wta_k >= 2 && orb_wta_k <= 4, "orb_wta_k must be 2, 3 or 4");
   need(orb_patch_size >= 2, "orb_patch_size must be >= 2");
   need(orb_fast_threshold >= 0, "orb_fast_threshold must be >= 0");
+  need(contrast_target > 0 && std::isfinite(contrast_target), "contrast_target must be positive");
+  need(contrast_max_gain >= 1 && std::isfinite(contrast_max_gain), "contrast_max_gain must be >= 1");
+  need(clahe_clip > 0 && std::isfinite(clahe_clip), "clahe_clip must be positive");
+  need(clahe_tiles >= 1 && clahe_tiles <= 64, "clahe_tiles must be in 1..64");
+  need(orb_min_fast_threshold >= 0 && orb_min_fast_threshold <= orb_fast_threshold,
+       "orb_min_fast_threshold must be in 0..orb_fast_threshold");
+  need((grid_cols == 0) == (grid_rows == 0), "grid_cols and grid_rows must both be 0 (off) or both positive");
+  need(grid_cols >= 0 && grid_cols <= 64 && grid_rows >= 0 && grid_rows <= 64, "grid_cols and grid_rows must be in 0..64");
+  need(grid_oversample >= 1 && grid_oversample <= 16, "grid_oversample must be in [1, 16]");
+  need(type == FeatureType::kOrb || IsPlainExtractor(*this),
+       "contrast, orb_min_fast_threshold and the grid are implemented for ORB only");
   need(sift_octave_layers >= 1, "sift_octave_layers must be >= 1");
   need(sift_contrast_threshold >= 0, "sift_contrast_threshold must be >= 0");
   need(sift_edge_threshold > 0, "sift_edge_threshold must be > 0");
@@ -36,11 +71,26 @@ void FeatureOptions::Check() const {
 FeatureExtractor::FeatureExtractor(const FeatureOptions& options) : options_(options) {
   options_.Check();
   if (options_.type == FeatureType::kOrb) {
-    detector_ = cv::ORB::create(options_.num_features, options_.orb_scale_factor,
-                                options_.orb_num_levels, options_.orb_edge_threshold,
-                                options_.orb_first_level, options_.orb_wta_k,
-                                options_.orb_fast_score ? cv::ORB::FAST_SCORE : cv::ORB::HARRIS_SCORE,
-                                options_.orb_patch_size, options_.orb_fast_threshold);
+    auto orb = [&](int n, int threshold) -> cv::Ptr<cv::Feature2D> {
+      return cv::ORB::create(n, options_.orb_scale_factor, options_.orb_num_levels,
+                             options_.orb_edge_threshold, options_.orb_first_level, options_.orb_wta_k,
+                             options_.orb_fast_score ? cv::ORB::FAST_SCORE : cv::ORB::HARRIS_SCORE,
+                             options_.orb_patch_size, threshold);
+    };
+    detector_ = orb(options_.num_features, options_.orb_fast_threshold);
+    adaptive_ = options_.orb_min_fast_threshold > 0 || options_.grid_cols > 0;
+    if (adaptive_) {
+      const int candidates =
+          options_.grid_cols > 0
+              ? static_cast<int>(std::ceil(options_.num_features * options_.grid_oversample))
+              : options_.num_features;
+      int t = options_.orb_fast_threshold;
+      detectors_.push_back(orb(candidates, t));
+      while (options_.orb_min_fast_threshold > 0 && t > options_.orb_min_fast_threshold) {
+        t = std::max(options_.orb_min_fast_threshold, t / 2);
+        detectors_.push_back(orb(candidates, t));
+      }
+    }
   } else {
     detector_ = cv::SIFT::create(options_.num_features, options_.sift_octave_layers,
                                  options_.sift_contrast_threshold, options_.sift_edge_threshold,
@@ -57,7 +107,51 @@ ImageFeatures FeatureExtractor::Extract(const cv::Mat& gray) const {
   }
   std::vector<cv::KeyPoint> kps;
   cv::Mat desc;
-  detector_->detectAndCompute(gray, cv::noArray(), kps, desc);
+  const cv::Mat image = Preprocess(gray);
+  if (!adaptive_) {
+    detector_->detectAndCompute(image, cv::noArray(), kps, desc);
+  } else {
+    // Detection at falling thresholds until the image yields num_features candidates.
+    for (const auto& d : detectors_) {
+      kps.clear();
+      d->detect(image, kps);
+      if (kps.size() >= static_cast<size_t>(options_.num_features)) break;
+    }
+    if (options_.grid_cols > 0 && kps.size() > static_cast<size_t>(options_.num_features)) {
+      // Best-first, at most a cell's share per cell, then the rest best-first.
+      const int cols = options_.grid_cols, rows = options_.grid_rows;
+      const size_t quota = (options_.num_features + cols * rows - 1) / (cols * rows);
+      std::vector<size_t> order(kps.size());
+      std::iota(order.begin(), order.end(), 0);
+      std::stable_sort(order.begin(), order.end(),
+                       [&](size_t a, size_t b) { return kps[a].response > kps[b].response; });
+      std::vector<size_t> per_cell(static_cast<size_t>(cols) * rows, 0);
+      std::vector<uint8_t> taken(kps.size(), 0);
+      std::vector<cv::KeyPoint> kept;
+      kept.reserve(options_.num_features);
+      for (size_t i : order) {
+        const int cx = std::clamp(static_cast<int>(kps[i].pt.x * cols / image.cols), 0, cols - 1);
+        const int cy = std::clamp(static_cast<int>(kps[i].pt.y * rows / image.rows), 0, rows - 1);
+        size_t& n = per_cell[static_cast<size_t>(cy) * cols + cx];
+        if (n < quota && kept.size() < static_cast<size_t>(options_.num_features)) {
+          ++n;
+          taken[i] = 1;
+          kept.push_back(kps[i]);
+        }
+      }
+      for (size_t i : order) {
+        if (kept.size() >= static_cast<size_t>(options_.num_features)) break;
+        if (!taken[i]) kept.push_back(kps[i]);
+      }
+      kps.swap(kept);
+    } else if (kps.size() > static_cast<size_t>(options_.num_features)) {
+      std::stable_sort(kps.begin(), kps.end(),
+                       [](const cv::KeyPoint& a, const cv::KeyPoint& b) { return a.response > b.response; });
+      kps.resize(options_.num_features);
+    }
+    // Descriptors of the chosen keypoints (their orientation and pyramid level are kept).
+    if (!kps.empty()) detector_->compute(image, kps, desc);
+  }
   ImageFeatures out;
   out.keypoints.reserve(kps.size());
   // SIFT may return more than num_features on ties; keep the strongest.
@@ -82,6 +176,46 @@ ImageFeatures FeatureExtractor::Extract(const cv::Mat& gray) const {
   }
   out.descriptors = keep == kps.size() ? desc : desc.rowRange(0, static_cast<int>(keep)).clone();
   return out;
+}
+
+cv::Mat FeatureExtractor::Preprocess(const cv::Mat& gray) const {
+  switch (options_.contrast) {
+    case Contrast::kNone:
+      return gray;
+    case Contrast::kNormalize: {
+      // The deviation of the fine detail, estimated robustly (1.4826 x the median absolute
+      // high-pass value, from a histogram in 1/8 grey-level steps) so that a few scuffs, stains
+      // or bits of debris on a faint floor do not lower its gain.
+      cv::Mat f, blur;
+      gray.convertTo(f, CV_32F);
+      cv::GaussianBlur(f, blur, cv::Size(), 2.0);
+      const cv::Mat hp = cv::abs(f - blur);
+      constexpr int kBins = 1024;
+      std::vector<uint32_t> hist(kBins, 0);
+      for (int r = 0; r < hp.rows; ++r) {
+        const float* p = hp.ptr<float>(r);
+        for (int c = 0; c < hp.cols; ++c) ++hist[std::min(kBins - 1, static_cast<int>(p[c] * 8.0f))];
+      }
+      const size_t half = hp.total() / 2;
+      size_t acc = 0;
+      int bin = 0;
+      while (bin < kBins - 1 && (acc += hist[bin]) <= half) ++bin;
+      const double sd = 1.4826 * (bin + 0.5) / 8.0;
+      const double gain = std::clamp(options_.contrast_target / std::max(sd, 1e-6), 1.0,
+                                     options_.contrast_max_gain);
+      if (gain <= 1.0) return gray;
+      const double m = cv::mean(gray)[0];
+      cv::Mat out;
+      gray.convertTo(out, CV_8U, gain, 128.0 - gain * m);  // saturating
+      return out;
+    }
+    case Contrast::kClahe: {
+      cv::Mat out;
+      cv::createCLAHE(options_.clahe_clip, cv::Size(options_.clahe_tiles, options_.clahe_tiles))->apply(gray, out);
+      return out;
+    }
+  }
+  return gray;
 }
 
 }  // namespace gtbow

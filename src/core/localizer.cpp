@@ -42,6 +42,7 @@ Localizer::Localizer(std::shared_ptr<Vocabulary> vocabulary, std::string vocabul
                                 " is " + VocabularyKindName(vocabulary_->kind()) + "/" +
                                 MetricName(vocabulary_->metric()));
   }
+  CheckVocabularyExtractor(*vocabulary_, vocabulary_path_, options_.retrieval.features);
   vocabulary_->set_search(vo.ann, vo.nprobe);
   vocabulary_->set_checks(vo.checks);
   encoder_ = std::make_unique<BowEncoder>(*vocabulary_, options_.retrieval.bow);
@@ -296,7 +297,17 @@ void Localizer::Load(const std::filesystem::path& path) {
   if (config != FormatRetrievalConfig(options_.retrieval)) {
     // Only the BoW options shape the stored index (the database checks them); feature
     // options change what new images look like. Both must match for answers to be consistent.
-    r.Fail("the map was built with other retrieval options (a different preset)");
+    // A map written before a key existed has that key's default.
+    std::string diff;
+    try {
+      diff = RetrievalConfigDifference(ParseRetrievalConfig(config, "the map's options"), "the map",
+                                       options_.retrieval, "this node");
+    } catch (const std::exception& e) {
+      r.Fail(std::string("the map's retrieval options cannot be read: ") + e.what());
+    }
+    if (!diff.empty()) {
+      r.Fail("the map was built with other retrieval options (another preset or extractor): " + diff);
+    }
   }
   const double mpp = r.Get<double>();
   if (mpp != options_.meters_per_pixel) {

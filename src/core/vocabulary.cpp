@@ -21,14 +21,19 @@
 
 #include "ground_texture_bow/core/binary_io.h"
 #include "ground_texture_bow/core/progress.h"
+#include "binary_ivf.h"
 #include "byte_distance.h"
+#include "hamming_distance.h"
 
 namespace gtbow {
 
 namespace {
 
 constexpr char kVocabularyMagic[8] = {'G', 'T', 'B', 'W', 'V', 'O', 'C', '\0'};
-constexpr uint32_t kVocabularyVersion = 2;  // 2: IVF lists stored with AKM words
+// 2: IVF lists stored with AKM words; 3: the extractor the vocabulary was trained with (and
+// binary IVF lists for Hamming words). Version 2 files are read.
+constexpr uint32_t kVocabularyVersion = 3;
+constexpr uint32_t kOldestVocabularyVersion = 2;
 
 int ThreadCount(int requested) {
   return requested > 0 ? requested
@@ -393,11 +398,11 @@ class AkmVocabulary : public Vocabulary {
     if (nprobe < 1) throw std::invalid_argument("nprobe must be >= 1");
     nprobe_ = nprobe;
     ann_ = ann;
-    if (ann == AnnIndex::kIvf && !ivf_) {
+    if (ann == AnnIndex::kIvf) {
       if constexpr (std::is_same<Space, FloatSpace>::value) {
-        ivf_ = std::make_unique<IvfIndex>(centroids_, metric_ == Metric::kL2Bytes, 1, 0);
+        if (!ivf_) ivf_ = std::make_unique<IvfIndex>(centroids_, metric_ == Metric::kL2Bytes, 1, 0);
       } else {
-        ann_ = AnnIndex::kFlann;  // binary descriptors: the Hamming tree only
+        if (!bivf_) bivf_ = std::make_unique<BinaryIvfIndex>(centroids_, 1, 0);
       }
     }
   }
@@ -410,6 +415,12 @@ class AkmVocabulary : public Vocabulary {
       throw std::invalid_argument("Assign: descriptor length " + std::to_string(descriptors.cols) +
                                   " does not match the vocabulary's " +
                                   std::to_string(centroids_.cols));
+    }
+    if constexpr (std::is_same<Space, BinarySpace>::value) {
+      if (ann_ == AnnIndex::kIvf && bivf_) {
+        bivf_->Search(ToSpace(descriptors, metric_), r, nprobe_, out);
+        return;
+      }
     }
     if (ann_ == AnnIndex::kIvf && ivf_ && ivf_->bytes() && descriptors.type() == CV_8U) {
       ivf_->SearchBytes(descriptors.isContinuous() ? descriptors : descriptors.clone(), r, nprobe_, out);
@@ -472,19 +483,20 @@ class AkmVocabulary : public Vocabulary {
     w->Put<int32_t>(checks_);
     w->PutArray(centroids_.ptr<E>(), centroids_.total());
     // The IVF lists, when built, so that loading does not cluster the words again.
-    w->Put<uint8_t>(ivf_ ? 1 : 0);
+    w->Put<uint8_t>(ivf_ || bivf_ ? 1 : 0);
     if (ivf_) ivf_->Save(w);
+    if (bivf_) bivf_->Save(w);
   }
 
-  // Restores IVF lists saved with the words (float vocabularies only).
+  // Restores IVF lists saved with the words.
  public:
   void LoadIvf(BinaryReader* r) {
     if constexpr (std::is_same<Space, FloatSpace>::value) {
       ivf_ = std::make_unique<IvfIndex>(centroids_, metric_ == Metric::kL2Bytes, r);
-      ann_ = AnnIndex::kIvf;
     } else {
-      r->Fail("IVF lists in a binary vocabulary");
+      bivf_ = std::make_unique<BinaryIvfIndex>(centroids_, r);
     }
+    ann_ = AnnIndex::kIvf;
   }
 
  protected:
@@ -513,7 +525,8 @@ class AkmVocabulary : public Vocabulary {
   mutable std::once_flag index_once_;
   AnnIndex ann_ = AnnIndex::kFlann;
   int nprobe_ = 8;
-  std::unique_ptr<IvfIndex> ivf_;
+  std::unique_ptr<IvfIndex> ivf_;          // float spaces
+  std::unique_ptr<BinaryIvfIndex> bivf_;   // Hamming
 };
 
 // Recomputes centroid c from its members: the mean (float) or the bitwise majority (binary).
@@ -575,6 +588,7 @@ void SeedPlusPlus(const cv::Mat& data, const std::vector<int>& members, int k,
 template <typename Space>
 std::unique_ptr<Vocabulary> TrainAkm(const VocabularyOptions& o, const cv::Mat& data,
                                      bool progress) {
+  using E = typename Space::Element;
   const int v = o.num_words;
   if (data.rows < v) {
     throw std::invalid_argument("AKM training needs at least num_words = " + std::to_string(v) +
@@ -594,21 +608,59 @@ std::unique_ptr<Vocabulary> TrainAkm(const VocabularyOptions& o, const cv::Mat& 
     for (int c = 0; c < v; ++c) data.row(order[c]).copyTo(centroids.row(c));
   }
   const int threads = ThreadCount(o.threads);
-  std::vector<uint32_t> label(data.rows);
-  ProgressBar bar("akm k-means", static_cast<size_t>(o.kmeans_iterations) * data.rows, progress);
+  // Searches in training are more thorough than at query time: k-means needs accurate nearest
+  // centroids to converge (the authors' code uses max(2000, V / 5) FLANN checks).
+  const int train_checks = o.train_checks > 0 ? o.train_checks : std::max(2000, v / 5);
+  constexpr bool kBinary = std::is_same<Space, BinarySpace>::value;
+  const bool binary_ivf = kBinary && o.ann == AnnIndex::kIvf;
+  std::vector<uint32_t> label(data.rows, std::numeric_limits<uint32_t>::max());
+  const bool early_stop = o.kmeans_stop_fraction > 0.0;
+  ProgressBar bar(early_stop ? "akm k-means (until converged)" : "akm k-means",
+                  static_cast<size_t>(o.kmeans_iterations) * data.rows, progress);
   for (int it = 0; it < o.kmeans_iterations; ++it) {
-    AkmVocabulary<Space> current(o.metric, centroids.clone(), o.num_trees, o.checks);
+    std::unique_ptr<AkmVocabulary<Space>> current;
+    std::unique_ptr<BinaryIvfIndex> ivf;
+    if (binary_ivf) {
+      ivf = std::make_unique<BinaryIvfIndex>(centroids, o.seed + static_cast<uint64_t>(it), threads);
+    } else {
+      current = std::make_unique<AkmVocabulary<Space>>(o.metric, centroids.clone(), o.num_trees, train_checks);
+    }
+    std::atomic<size_t> changed{0};
     ParallelChunks(static_cast<size_t>(data.rows), threads, [&](size_t b, size_t e, int) {
       constexpr size_t kBlock = 4096;
       std::vector<WordHit> hits;
+      size_t moved = 0;
       for (size_t s = b; s < e; s += kBlock) {
         const size_t n = std::min(kBlock, e - s);
-        current.Search(data.rowRange(static_cast<int>(s), static_cast<int>(s + n)), 1, &hits);
-        for (size_t i = 0; i < n; ++i) label[s + i] = hits[i].word;
+        const cv::Mat rows = data.rowRange(static_cast<int>(s), static_cast<int>(s + n));
+        if (ivf) {
+          ivf->Search(rows, 1, o.train_nprobe > 0 ? o.train_nprobe : ivf->num_lists(), &hits);
+        } else {
+          current->Search(rows, 1, &hits);
+        }
+        for (size_t i = 0; i < n; ++i) {
+          uint32_t l = hits[i].word;
+          const uint32_t old = label[s + i];
+          // A descriptor keeps its centroid unless the search found a strictly closer one: an
+          // approximate search must not move it back and forth between equally near words.
+          if (old != std::numeric_limits<uint32_t>::max() && l != old &&
+              Space::Distance(rows.ptr<E>(static_cast<int>(i)), centroids.ptr<E>(static_cast<int>(old)),
+                              data.cols) <= hits[i].distance) {
+            l = old;
+          }
+          moved += l != old ? 1 : 0;
+          label[s + i] = l;
+        }
         bar.Add(n);
       }
+      changed += moved;
     });
     UpdateCentroids(data, label, &centroids, rng, threads);
+    const double fraction = static_cast<double>(changed) / data.rows;
+    if (it > 0 && (changed == 0 || (early_stop && it >= o.kmeans_min_iterations &&
+                                    fraction < o.kmeans_stop_fraction))) {
+      break;
+    }
   }
   bar.Finish();
   return std::make_unique<AkmVocabulary<Space>>(o.metric, centroids, o.num_trees, o.checks);
@@ -884,6 +936,10 @@ void VocabularyOptions::Check() const {
   };
   need(num_words >= 2, "num_words must be >= 2");
   need(kmeans_iterations >= 1, "kmeans_iterations must be >= 1");
+  need(kmeans_stop_fraction >= 0.0 && kmeans_stop_fraction < 1.0, "kmeans_stop_fraction must be in [0, 1)");
+  need(kmeans_min_iterations >= 1, "kmeans_min_iterations must be >= 1");
+  need(train_checks >= 0, "train_checks must be >= 0 (0: max(2000, V / 5))");
+  need(train_nprobe >= 0, "train_nprobe must be >= 0 (0: all lists)");
   need(num_trees >= 1 && num_trees <= 64, "num_trees must be in 1..64");
   need(checks >= 1, "checks must be >= 1");
   need(nprobe >= 1, "nprobe must be >= 1");
@@ -937,6 +993,7 @@ void Vocabulary::Save(const std::filesystem::path& path) const {
   w.Put<uint32_t>(size());
   w.PutVector(idf_);
   w.PutVector(size_thresholds_);
+  w.PutString(extractor_);
   SaveWords(&w);
   WriteFramedFile(path, kVocabularyMagic, kVocabularyVersion, w.buffer());
 }
@@ -1007,18 +1064,22 @@ std::unique_ptr<Vocabulary> MakeVocabularyFromFile(BinaryReader* r, VocabularyKi
 }  // namespace
 
 std::unique_ptr<Vocabulary> Vocabulary::Load(const std::filesystem::path& path) {
-  const FramedPayload payload = ReadFramedFile(path, kVocabularyMagic, kVocabularyVersion, "vocabulary");
+  const FramedPayload payload =
+      ReadFramedFile(path, kVocabularyMagic, kOldestVocabularyVersion, kVocabularyVersion, "vocabulary");
   BinaryReader r(payload.data(), payload.size(), path.string());
   const uint8_t kind = r.Get<uint8_t>(), metric = r.Get<uint8_t>();
   if (kind > 1 || metric > 2) r.Fail("unknown vocabulary kind or metric");
   const uint32_t words = r.Get<uint32_t>();
   auto idf = r.GetVector<float>(100000000);
   auto thresholds = r.GetVector<float>(256);
+  std::string extractor;
+  if (payload.version() >= 3) extractor = r.GetString(1u << 16);
   auto vocab = MakeVocabularyFromFile(&r, static_cast<VocabularyKind>(kind), static_cast<Metric>(metric));
   if (vocab->size() != words || idf.size() != words) r.Fail("word count mismatch");
   if (r.remaining() != 0) r.Fail("unexpected trailing data");
   vocab->set_idf(std::move(idf));
   vocab->set_size_thresholds(std::move(thresholds));
+  vocab->set_extractor(std::move(extractor));
   return vocab;
 }
 

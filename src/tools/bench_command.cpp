@@ -63,8 +63,7 @@ void RunBench(const BenchArgs& a) {
   for (const auto& c : configs) {
     const FeatureOptions& f = c.features;
     const FeatureOptions& g = configs[0].features;
-    if (f.type != g.type || f.num_features != g.num_features || f.orb_num_levels != g.orb_num_levels ||
-        f.orb_scale_factor != g.orb_scale_factor) {
+    if (FormatFeatureOptions(f) != FormatFeatureOptions(g)) {
       throw std::invalid_argument("all --preset files must use the same features");
     }
   }
@@ -72,6 +71,7 @@ void RunBench(const BenchArgs& a) {
   const auto vocab = Vocabulary::Load(a.vocab);
   const double vocab_load_ms = Ms(std::chrono::steady_clock::now() - t0);
   if (a.checks > 0) vocab->set_checks(a.checks);
+  CheckVocabularyExtractor(*vocab, a.vocab, configs[0].features);
   ImageSource db_src = ImageSource::FromDataset(a.dataset, a.split);
   db_src.Subsample(a.max_images);
   const auto feats = ExtractAllCached(db_src, configs[0].features, DefaultCacheDir(), a.threads, !a.quiet);

@@ -217,6 +217,7 @@ std::unique_ptr<Vocabulary> TrainOnFeatures(const RetrievalConfig& c,
   }
   auto vocab = TrainVocabulary(c.vocabulary, desc, image_of, progress);
   vocab->set_size_thresholds(SizePercentileThresholds(sizes, c.bow.num_size_bins));
+  vocab->set_extractor(FormatFeatureOptions(c.features));
   return vocab;
 }
 
@@ -247,6 +248,7 @@ std::unique_ptr<Vocabulary> DatasetVocabulary(const VocabularyRequest& a, const 
     // A given vocabulary serves every preset of its kind and metric; others are trained.
     auto v = Vocabulary::Load(a.file);
     if (v->kind() == c.vocabulary.kind && v->metric() == c.vocabulary.metric) {
+      CheckVocabularyExtractor(*v, a.file, c.features);
       *desc = a.file;
       return v;
     }

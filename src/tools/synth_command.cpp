@@ -21,13 +21,38 @@ struct SynthArgs {
   bool force = false;
   bool quiet = false;
   bool ideal = false;
+  std::vector<std::string> photos, train_photos;
+  bool surface_given = false, area_given = false;
   synth::SynthOptions options;
 };
 
 void RunSynth(SynthArgs& a) {
   synth::SynthOptions& o = a.options;
-  o.surface = synth::ParseSurface(a.surface);
   o.camera.sensor_effects = !a.ideal;
+  if (!a.photos.empty()) {
+    if (a.surface_given || a.area_given || a.database_images != 0) {
+      throw std::invalid_argument("--photo makes the floor from photographs: --surface, --area and "
+                                  "--database-images do not apply");
+    }
+    o.photos.assign(a.photos.begin(), a.photos.end());
+    o.train_photos.assign(a.train_photos.begin(), a.train_photos.end());
+    if (o.train_photos.empty() && o.train_images > 0) {
+      throw std::invalid_argument("--photo: give training photos with --train-photo (other photos of the "
+                                  "same kind of floor), or --train 0");
+    }
+    o.Check();
+    const synth::SynthSummary s = synth::GenerateDataset(o, a.out, a.force, !a.quiet);
+    std::printf("Photo floor written to %s\n", a.out.c_str());
+    std::printf("  seed %llu, %zu map photo(s), %zu training photo(s), footprint %.1f x %.1f mm at %.3f mm/px\n",
+                static_cast<unsigned long long>(o.seed), o.photos.size(), o.train_photos.size(),
+                o.camera.width * o.camera.meters_per_pixel * 1e3,
+                o.camera.height * o.camera.meters_per_pixel * 1e3, o.camera.meters_per_pixel * 1e3);
+    for (const auto& [split, n] : s.split_sizes) std::printf("  %-28s %6zu images\n", split.c_str(), n);
+    std::printf("  %zu images, %.1f MB, in %.1f s\n", s.images, s.bytes / 1e6, s.seconds);
+    return;
+  }
+  if (!a.train_photos.empty()) throw std::invalid_argument("--train-photo needs --photo");
+  o.surface = synth::ParseSurface(a.surface);
   if (!a.area.empty()) {
     if (a.area.size() != 2) throw std::invalid_argument("--area takes WIDTH HEIGHT in metres");
     o.area_width = a.area[0];
@@ -64,11 +89,22 @@ void RegisterSynth(CLI::App& app) {
   synth::SynthOptions& o = args->options;
   cmd->add_option("-o,--out", args->out, "Output dataset directory")->required();
   cmd->add_option("--surface", args->surface, "asphalt, concrete, carpet, laminate (or flat)")
-      ->capture_default_str();
+      ->capture_default_str()
+      ->each([args](const std::string&) { args->surface_given = true; });
+  cmd->add_option("--photo", args->photos,
+                  "Make the floor from top-down photographs instead (repeatable): each is one bounded "
+                  "region of the map; queries are split per photo")
+      ->check(CLI::ExistingFile);
+  cmd->add_option("--train-photo", args->train_photos,
+                  "Photographs for the train split (other photos of the same kind of floor; repeatable)")
+      ->check(CLI::ExistingFile);
+  cmd->add_option("--photo-mpp", o.photo_meters_per_pixel,
+                  "Ground size of a photo pixel, metres (default: --meters-per-pixel)");
   cmd->add_option("--seed", o.seed, "Random seed; same arguments and seed give identical output")
       ->capture_default_str();
   cmd->add_option("--area", args->area, "Database area WIDTH HEIGHT in metres (default 1 1)")
-      ->expected(2);
+      ->expected(2)
+      ->each([args](const std::string&) { args->area_given = true; });
   cmd->add_option("--database-images", args->database_images,
                   "Choose a square area whose lawnmower path has about this many images");
   cmd->add_option("--overlap", o.overlap, "Overlap between lawnmower neighbours, fraction")

@@ -136,20 +136,25 @@ class FramedFileWriter {
 // A framed file's contents, with the payload located inside it (no copy of the payload).
 class FramedPayload {
  public:
-  FramedPayload(std::string file, size_t offset, size_t size)
-      : file_(std::move(file)), offset_(offset), size_(size) {}
+  FramedPayload(std::string file, size_t offset, size_t size, uint32_t version = 0)
+      : file_(std::move(file)), offset_(offset), size_(size), version_(version) {}
   const char* data() const { return file_.data() + offset_; }
   size_t size() const { return size_; }
+  uint32_t version() const { return version_; }  // the file's format version
 
  private:
   std::string file_;
   size_t offset_;
   size_t size_;
+  uint32_t version_;
 };
 
 // Reads a framed file; throws std::runtime_error naming the file when the magic, version, size
 // or checksum is wrong.
 FramedPayload ReadFramedFile(const std::filesystem::path& path, const char magic[8],
                              uint32_t version, const std::string& what);
+// The same for a reader of versions oldest..newest.
+FramedPayload ReadFramedFile(const std::filesystem::path& path, const char magic[8],
+                             uint32_t oldest, uint32_t newest, const std::string& what);
 
 }  // namespace gtbow

@@ -18,6 +18,13 @@ enum class SizeBinning { kNone, kOctave, kPercentile };
 SizeBinning ParseSizeBinning(const std::string& name);  // "none", "octave" or "percentile"
 std::string SizeBinningName(SizeBinning binning);
 
+// How the S x V vector is normalised. kGlobal: once, over the whole vector (the paper's text,
+// §II-A). kPerBin: each size bin's part first, so that every non-empty bin weighs the same,
+// then the whole vector (the authors' code, napp-lab/GTBoW SizeBinnedVocabulary::transform).
+enum class Normalization { kGlobal, kPerBin };
+Normalization ParseNormalization(const std::string& name);  // "global" or "per_bin"
+std::string NormalizationName(Normalization normalization);
+
 // kDot: tf-idf, L2-normalised, scored by dot product (the paper's method).
 // kDbowL1: tf-idf, L1-normalised, scored by DBoW2's L1 score sum(min(q, d)) (the baseline).
 enum class Scoring { kDot, kDbowL1 };
@@ -28,7 +35,11 @@ struct BowOptions {
   SizeBinning size_binning = SizeBinning::kOctave;  // §II-A; kNone means S = 1
   int num_size_bins = 8;                 // S (octave binning: one bin per ORB pyramid level)
   int soft_assignment = 3;               // r nearest words per descriptor; 1 = hard assignment
-  double sigma = 580.0;                  // soft-assignment scale, descriptor-metric units
+  // Soft-assignment scale sigma of exp(-d^2 / 2 sigma^2), in the metric's units (L2 of the
+  // descriptor bytes, or Hamming bits). The paper's "sigma = 580" read as an L2 scale is 580;
+  // the authors' code uses 580 as sigma^2 of Hamming bits, i.e. sigma = sqrt(580) = 24.08.
+  double sigma = 580.0;
+  Normalization normalization = Normalization::kGlobal;
   bool orientation_verification = true;  // §II-B; off: the score is the plain dot product
   int orientation_bins = 6;              // R
   Scoring scoring = Scoring::kDot;

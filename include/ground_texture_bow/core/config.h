@@ -28,5 +28,16 @@ RetrievalConfig ParseRetrievalConfig(const std::string& yaml, const std::string&
 RetrievalConfig LoadRetrievalConfig(const std::filesystem::path& path);
 // The YAML form of a configuration (every key, so it documents the defaults).
 std::string FormatRetrievalConfig(const RetrievalConfig& config);
+// The `features` section alone (what Vocabulary::extractor() records).
+std::string FormatFeatureOptions(const FeatureOptions& features);
+// Throws std::invalid_argument naming `vocabulary_name` and the differing keys when the
+// vocabulary was trained with another extractor than `features` (a vocabulary from before
+// format 3, which did not record it, passes only with the paper's plain extractor).
+void CheckVocabularyExtractor(const Vocabulary& vocabulary, const std::string& vocabulary_name,
+                              const FeatureOptions& features);
+// The keys whose values differ, as "section.key: A (a_name), B (b_name)" joined by "; ";
+// empty when the configurations are the same.
+std::string RetrievalConfigDifference(const RetrievalConfig& a, const std::string& a_name,
+                                      const RetrievalConfig& b, const std::string& b_name);
 
 }  // namespace gtbow

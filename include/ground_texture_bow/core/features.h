@@ -16,6 +16,17 @@ enum class FeatureType { kOrb, kSift };
 FeatureType ParseFeatureType(const std::string& name);
 std::string FeatureTypeName(FeatureType type);
 
+// Contrast adaptation before detection (the descriptors are computed on the same image).
+//  kNone:      the image as it is (the paper).
+//  kNormalize: a faint floor is stretched linearly about its mean until its fine detail (the
+//              image minus its Gaussian blur, sigma 2 px) has the grey-level deviation
+//              `contrast_target`; the gain is at least 1 and at most `contrast_max_gain`, so a
+//              floor with enough contrast is left unchanged.
+//  kClahe:     contrast-limited adaptive histogram equalisation (OpenCV CLAHE) of every image.
+enum class Contrast { kNone, kNormalize, kClahe };
+Contrast ParseContrast(const std::string& name);  // "none", "normalize" or "clahe"
+std::string ContrastName(Contrast contrast);
+
 struct FeatureOptions {
   FeatureType type = FeatureType::kOrb;  // detector and descriptor
   int num_features = 250;                // keypoints kept per image (paper: 250)
@@ -28,6 +39,21 @@ struct FeatureOptions {
   bool orb_fast_score = false;           // rank by FAST score instead of Harris
   int orb_patch_size = 31;               // descriptor patch, pixels
   int orb_fast_threshold = 20;           // FAST threshold, grey levels
+  // Adaptation to the floor (ORB). All off is the paper's plain ORB.
+  Contrast contrast = Contrast::kNone;   // contrast adaptation before detection
+  double contrast_target = 12.0;         // kNormalize: fine-detail deviation to reach, grey levels
+  double contrast_max_gain = 4.0;        // kNormalize: largest gain
+  double clahe_clip = 2.0;               // kClahe: clip limit
+  int clahe_tiles = 8;                   // kClahe: tiles along each image axis
+  // Adaptive FAST threshold: when an image yields fewer than num_features keypoints, detect
+  // again with the threshold halved, down to this (0: the threshold is fixed).
+  int orb_min_fast_threshold = 0;
+  // Spread keypoints over a grid_cols x grid_rows grid (0: off): candidates are detected
+  // `grid_oversample` times num_features, then taken best-first with at most their share per
+  // cell, the remainder filled best-first.
+  int grid_cols = 0;
+  int grid_rows = 0;
+  double grid_oversample = 2.0;
   // SIFT (cv::SIFT).
   int sift_octave_layers = 3;            // layers per octave
   double sift_contrast_threshold = 0.04; // DoG contrast threshold
@@ -67,13 +93,23 @@ class FeatureExtractor {
 
   // Extracts features from an 8-bit grayscale image. Throws std::invalid_argument for an empty
   // or non-8-bit-gray image. A featureless image gives an empty result, not an error.
+  // Thread-safe: concurrent calls on one extractor are allowed.
   ImageFeatures Extract(const cv::Mat& gray) const;
 
   const FeatureOptions& options() const { return options_; }
+  // The image the detector and descriptor see (after contrast adaptation).
+  cv::Mat Preprocess(const cv::Mat& gray) const;
 
  private:
   FeatureOptions options_;
   cv::Ptr<cv::Feature2D> detector_;
+  // ORB adaptation: detectors at the FAST thresholds tried in turn (first: orb_fast_threshold),
+  // each asking for the number of candidates the grid needs.
+  std::vector<cv::Ptr<cv::Feature2D>> detectors_;
+  bool adaptive_ = false;
 };
+
+// True when the options make the paper's plain ORB or SIFT (no adaptation to the floor).
+bool IsPlainExtractor(const FeatureOptions& options);
 
 }  // namespace gtbow

@@ -27,10 +27,11 @@ enum class Metric { kL2Bytes, kHamming, kL2 };
 // How an AKM vocabulary finds the words of a descriptor at query time.
 //  kFlann: FLANN's randomized kd-tree forest (L2 metrics) or hierarchical clustering tree
 //          (Hamming): the paper's structure (Philbin et al. 2007), also used in training.
-//  kIvf:   an inverted file over the words (L2 metrics): the words are grouped around sqrt(V)
-//          coarse centres; a descriptor is compared exhaustively with the words of its
-//          `nprobe` nearest groups. Much more accurate than the kd-tree at the same speed on
-//          32-byte ORB descriptors (measured in the README).
+//  kIvf:   an inverted file over the words: the words are grouped around sqrt(V) coarse
+//          centres; a descriptor is compared exhaustively with the words of its `nprobe`
+//          nearest groups (integer SIMD for l2_bytes, vector popcount for Hamming; nprobe >=
+//          sqrt(V) is exact). Much more accurate than the trees at the same speed on 32-byte ORB
+//          descriptors (measured in the README).
 enum class AnnIndex { kFlann, kIvf };
 AnnIndex ParseAnnIndex(const std::string& name);  // "flann" or "ivf"
 std::string AnnIndexName(AnnIndex index);
@@ -44,11 +45,22 @@ struct VocabularyOptions {
   VocabularyKind kind = VocabularyKind::kAkm;
   Metric metric = Metric::kL2Bytes;
   int num_words = 100000;        // AKM: V, the number of words
-  int kmeans_iterations = 10;    // AKM: Lloyd iterations with approximate assignment
-  int num_trees = 8;             // AKM: randomized kd-trees in the forest (L2 metrics)
+  int kmeans_iterations = 10;    // AKM: Lloyd iterations (the most, with kmeans_stop_fraction)
+  // AKM: stop k-means early once fewer than this fraction of the descriptors change word in an
+  // iteration, after at least kmeans_min_iterations (the authors' code: 0.01 after 5, at most
+  // 200 iterations). 0 runs all kmeans_iterations.
+  double kmeans_stop_fraction = 0.0;
+  int kmeans_min_iterations = 5;
+  int num_trees = 8;             // AKM: randomized kd-trees (L2) or clustering trees (Hamming)
   int checks = 64;               // AKM, flann: leaves visited per ANN query (speed vs accuracy)
-  AnnIndex ann = AnnIndex::kIvf; // AKM: query-time word search (training always uses FLANN)
+  // AKM training: leaves visited per FLANN search in k-means (0: max(2000, V / 5), the authors'
+  // rule). Training of a Hamming vocabulary with ann: ivf searches the binary IVF instead.
+  int train_checks = 0;
+  AnnIndex ann = AnnIndex::kIvf; // AKM: query-time word search
   int nprobe = 16;               // AKM, ivf: groups of words searched per descriptor
+  // AKM, Hamming with ann: ivf: lists searched per descriptor in k-means training (0 = all:
+  // exact assignment).
+  int train_nprobe = 0;
   int hkm_branching = 10;        // HKM: k, children per node
   int hkm_depth = 5;             // HKM: L, levels (k = 10, L = 5: the paper's DBoW baseline)
   uint64_t seed = 1;             // k-means seeding and kd-tree randomisation
@@ -101,6 +113,10 @@ class Vocabulary {
   void set_size_thresholds(std::vector<float> t) { size_thresholds_ = std::move(t); }
   // A fingerprint of the words, stored in databases to detect a mismatched vocabulary.
   uint64_t fingerprint() const { return fingerprint_; }
+  // The feature extractor the vocabulary was trained with: the `features` section of the
+  // retrieval configuration as YAML (config.h). Empty for files written before format 3.
+  const std::string& extractor() const { return extractor_; }
+  void set_extractor(std::string yaml) { extractor_ = std::move(yaml); }
 
   // Writes the vocabulary file atomically (magic, version, checksum).
   void Save(const std::filesystem::path& path) const;
@@ -114,6 +130,7 @@ class Vocabulary {
   std::vector<float> idf_;
   std::vector<float> size_thresholds_;
   uint64_t fingerprint_ = 0;
+  std::string extractor_;
 };
 
 // Trains a vocabulary on `descriptors` (one row each, all training images stacked). `image_of`

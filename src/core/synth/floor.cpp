@@ -5,6 +5,7 @@
 #include <limits>
 #include <stdexcept>
 
+#include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
 #include "noise.h"
@@ -826,6 +827,106 @@ void RenderLaminate(Canvas& cv, uint64_t seed, Phase phase, const cv::Mat& disto
   });
 }
 
+// Faint flecks: soft-edged blobs that change the brightness by a factor 1 + c, c drawn with
+// deviation `contrast` (sand grains in a trowelled paste, specks in a coating).
+void DrawFlecks(Canvas& cv, uint64_t seed, double cell, double prob, double rmin, double rmax,
+                double contrast) {
+  ForEachCell(cv.region, cell, rmax * 1.6, seed, [&](CellRng& rng, double x0, double y0) {
+    const int n = rng.Poisson(prob);
+    for (int k = 0; k < n; ++k) {
+      Blob b;
+      b.cx = x0 + rng.Uniform(0, cell);
+      b.cy = y0 + rng.Uniform(0, cell);
+      b.r = rmin + (rmax - rmin) * std::pow(rng.Uniform(), 2.0);
+      b.Randomize(rng, 0.5);
+      const float c = static_cast<float>(contrast * rng.ApproxNormal());
+      ForEachPixelNear(cv.region, b.cx, b.cy, b.rmax * 1.3, [&](float dx, float dy, size_t idx) {
+        const float t = b.Normalized(dx, dy);
+        if (t < 1.3f) cv.value[idx] *= 1.0f + c * (1.0f - SmoothStep(0.85f, 1.15f, t));
+      });
+    }
+  });
+}
+
+// Power-trowelled or polished concrete: a cement paste whose structure is fine and faint
+// (grey-level deviation of a few percent): cloudy mottling at several scales, sand fines,
+// sparse small pinholes, faint flecks of fine aggregate. Nearly flat (polished).
+void RenderSmoothConcrete(Canvas& cv, uint64_t seed, Phase phase) {
+  if (phase == Phase::kElements) {
+    DrawFlecks(cv, LayerSeed(seed, 60), 0.7, 0.8, 0.08, 0.35, 0.06);   // sand grains
+    DrawFlecks(cv, LayerSeed(seed, 61), 6.0, 0.5, 0.4, 1.6, 0.04);     // fine aggregate
+    DrawPores(cv, LayerSeed(seed, 62), 2.5, 0.45, 0.06, 0.5, 0.38f);   // pinholes and pits
+    return;
+  }
+  const uint32_t s1 = Seed32(seed, 1), s2 = Seed32(seed, 2), s3 = Seed32(seed, 4);
+  const cv::Mat fine = cv.Noise(0.4, s2), mid = cv.SmoothNoise(1.5, s1), cloud = cv.SmoothNoise(6.0, s3);
+  const float* f = fine.ptr<float>();
+  const float* m = mid.ptr<float>();
+  const float* c = cloud.ptr<float>();
+  const size_t n = static_cast<size_t>(cv.fine.w) * cv.fine.h;
+  for (size_t idx = 0; idx < n; ++idx) {
+    cv.grain[idx] = 0.6f * f[idx] + 0.4f * m[idx];
+    cv.value[idx] = 0.55f + 0.02f * f[idx] + 0.012f * m[idx] + 0.018f * c[idx];
+    cv.height[idx] = 0.004f * cv.grain[idx];
+  }
+}
+
+// A painted or epoxy floor: a uniform coat whose only structure is an orange-peel relief
+// (shaded by the camera's lamp), roller marks, dust specks, bubbles and hairline scratches.
+void RenderEpoxy(Canvas& cv, uint64_t seed, Phase phase) {
+  if (phase == Phase::kElements) {
+    DrawFlecks(cv, LayerSeed(seed, 70), 1.2, 0.5, 0.05, 0.25, 0.1);    // dust and filler in the coat
+    DrawPores(cv, LayerSeed(seed, 71), 14.0, 0.3, 0.08, 0.3, 0.3f);    // bubbles, pinholes
+    ForEachCell(cv.region, 18.0, 30.0, LayerSeed(seed, 72), [&](CellRng& rng, double x0, double y0) {
+      if (rng.Uniform() > 0.6) return;                                 // hairline scratches
+      Stroke st;
+      st.width = rng.Uniform(0.04, 0.12);
+      st.Make(rng, x0 + rng.Uniform(0, 18.0), y0 + rng.Uniform(0, 18.0), rng.Uniform(0, 2 * M_PI),
+              rng.Uniform(5.0, 30.0), 0.15);
+      DrawStroke(cv, st, 0.75f, 0.0f, 2, static_cast<float>(rng.Uniform(0.04, 0.12)));
+    });
+    return;
+  }
+  const uint32_t s1 = Seed32(seed, 1), s2 = Seed32(seed, 2);
+  const cv::Mat peel = cv.SmoothNoise(0.7, s1), fine = cv.Noise(0.35, s2);
+  const float* p = peel.ptr<float>();
+  const float* f = fine.ptr<float>();
+  const size_t n = static_cast<size_t>(cv.fine.w) * cv.fine.h;
+  for (size_t idx = 0; idx < n; ++idx) {
+    cv.grain[idx] = p[idx];
+    cv.value[idx] = 0.42f + 0.006f * p[idx] + 0.01f * f[idx];
+    cv.height[idx] = 0.035f * p[idx];  // orange peel, mm
+  }
+}
+
+// A photograph sampled bilinearly at every fine pixel's floor point.
+void RenderPhoto(Canvas& cv, const PhotoRegion* region, Phase phase) {
+  if (phase == Phase::kElements) return;
+  const size_t n = static_cast<size_t>(cv.fine.w) * cv.fine.h;
+  std::fill(cv.grain, cv.grain + n, 0.0f);
+  if (region == nullptr) {
+    std::fill(cv.value, cv.value + n, 0.5f);
+    return;
+  }
+  const cv::Mat& img = region->reflectance;
+  const int pw = img.cols, ph = img.rows;
+  const double inv = 1.0 / (1000.0 * region->meters_per_pixel);
+  const double x0 = 1000.0 * region->x0, y0 = 1000.0 * region->y0;
+  ForEachPixel(cv.fine, [&](double x, double y, size_t idx) {
+    const double u = std::clamp((x - x0) * inv - 0.5, 0.0, pw - 1.0);
+    const double v = std::clamp((y - y0) * inv - 0.5, 0.0, ph - 1.0);
+    const int iu = std::min(static_cast<int>(u), pw - 2 < 0 ? 0 : pw - 2);
+    const int iv = std::min(static_cast<int>(v), ph - 2 < 0 ? 0 : ph - 2);
+    const float fu = static_cast<float>(u - iu), fv = static_cast<float>(v - iv);
+    const float* r0 = img.ptr<float>(iv);
+    const float* r1 = img.ptr<float>(std::min(iv + 1, ph - 1));
+    const int iu1 = std::min(iu + 1, pw - 1);
+    const float top = r0[iu] + fu * (r0[iu1] - r0[iu]);
+    const float bottom = r1[iu] + fu * (r1[iu1] - r1[iu]);
+    cv.value[idx] = top + fv * (bottom - top);
+  });
+}
+
 void LowFrequencyBase(Surface surface, uint64_t seed, const View& cview, cv::Mat* add) {
   float* a = add->ptr<float>();
   const uint32_t s = Seed32(seed, 3);
@@ -839,10 +940,19 @@ void LowFrequencyBase(Surface surface, uint64_t seed, const View& cview, cv::Mat
     case Surface::kCarpet:
       ForEachPixel(cview, [&](double x, double y, size_t i) { a[i] = 0.08f * Fbm(x / 12.0, y / 12.0, s, 3); });
       break;
+    case Surface::kSmoothConcrete:  // trowel swirls: long faint bands of burnish
+      ForEachPixel(cview, [&](double x, double y, size_t i) {
+        a[i] = 0.012f * Fbm(x / 60.0, y / 20.0, s, 3) + 0.01f * Fbm(x / 15.0, y / 15.0, s + 1, 2);
+      });
+      break;
+    case Surface::kEpoxy:  // roller marks
+      ForEachPixel(cview, [&](double x, double y, size_t i) { a[i] = 0.01f * Fbm(x / 150.0, y / 25.0, s, 2); });
+      break;
     case Surface::kLaminate:  // grain distortion (mm), stretched along the planks
       ForEachPixel(cview, [&](double x, double y, size_t i) { a[i] = 6.0f * Fbm(x / 80.0, y / 10.0, s, 2); });
       break;
     case Surface::kFlat:
+    case Surface::kPhoto:
       break;
   }
 }
@@ -891,6 +1001,8 @@ Surface ParseSurface(const std::string& name) {
   if (name == "concrete") return Surface::kConcrete;
   if (name == "carpet") return Surface::kCarpet;
   if (name == "laminate") return Surface::kLaminate;
+  if (name == "smooth_concrete") return Surface::kSmoothConcrete;
+  if (name == "epoxy") return Surface::kEpoxy;
   if (name == "flat") return Surface::kFlat;
   std::string valid;
   for (const auto& n : SurfaceNames()) valid += (valid.empty() ? "" : ", ") + n;
@@ -903,14 +1015,64 @@ std::string SurfaceName(Surface surface) {
     case Surface::kConcrete: return "concrete";
     case Surface::kCarpet: return "carpet";
     case Surface::kLaminate: return "laminate";
+    case Surface::kSmoothConcrete: return "smooth_concrete";
+    case Surface::kEpoxy: return "epoxy";
     case Surface::kFlat: return "flat";
+    case Surface::kPhoto: return "photo";
   }
   return "unknown";
 }
 
-std::vector<std::string> SurfaceNames() { return {"asphalt", "concrete", "carpet", "laminate", "flat"}; }
+std::vector<std::string> SurfaceNames() {
+  return {"asphalt", "concrete", "carpet", "laminate", "smooth_concrete", "epoxy", "flat"};
+}
 
-Floor::Floor(Surface surface, uint64_t seed) : surface_(surface), seed_(Mix64(seed + 0x5eed)) {}
+Floor::Floor(Surface surface, uint64_t seed)
+    : surface_(surface), seed_(Mix64(seed + 0x5eed)), regions_(std::make_shared<std::vector<PhotoRegion>>()) {
+  if (surface == Surface::kPhoto) throw std::invalid_argument("Floor: a photo floor needs its photographs");
+}
+
+Floor::Floor(std::vector<PhotoRegion> regions, uint64_t seed)
+    : surface_(Surface::kPhoto), seed_(Mix64(seed + 0x5eed)),
+      regions_(std::make_shared<std::vector<PhotoRegion>>(std::move(regions))) {
+  if (regions_->empty()) throw std::invalid_argument("Floor: a photo floor needs at least one photograph");
+  for (const auto& r : *regions_) {
+    if (r.reflectance.empty() || r.reflectance.type() != CV_32F || !(r.meters_per_pixel > 0)) {
+      throw std::invalid_argument("Floor: photo region " + r.path.string() + " has no image or scale");
+    }
+  }
+}
+
+PhotoRegion LoadPhotoRegion(const std::filesystem::path& path, double meters_per_pixel) {
+  if (!(meters_per_pixel > 0) || !std::isfinite(meters_per_pixel)) {
+    throw std::invalid_argument("photo " + path.string() + ": metres per pixel must be positive");
+  }
+  std::error_code ec;
+  if (!std::filesystem::is_regular_file(path, ec)) {
+    throw std::invalid_argument("photo " + path.string() + ": no such file");
+  }
+  cv::Mat img;
+  try {
+    img = cv::imread(path.string(), cv::IMREAD_ANYDEPTH | cv::IMREAD_GRAYSCALE);
+  } catch (const cv::Exception& e) {
+    img.release();
+  }
+  if (img.empty()) {
+    throw std::invalid_argument("photo " + path.string() +
+                                ": not an image, or a format that cannot be decoded (use PNG, JPEG, "
+                                "TIFF or BMP)");
+  }
+  PhotoRegion r;
+  r.path = path;
+  r.label = path.stem().string();
+  r.meters_per_pixel = meters_per_pixel;
+  const double scale = img.depth() == CV_16U ? 1.0 / 65535.0 : img.depth() == CV_8U ? 1.0 / 255.0 : 0.0;
+  if (scale == 0.0) {
+    throw std::invalid_argument("photo " + path.string() + ": unsupported pixel depth (8 or 16 bits)");
+  }
+  img.convertTo(r.reflectance, CV_32F, scale);
+  return r;
+}
 
 void Floor::Render(const Homography& floor_from_image, int width, int height, int supersample,
                    const FloorState& state, cv::Mat* out) const {
@@ -947,6 +1109,23 @@ void Floor::Render(const Homography& floor_from_image, int width, int height, in
   cv::Mat mul_c(coarse.h, coarse.w, CV_32F, cv::Scalar(1));
   if (surface_ != Surface::kLaminate) LowFrequencyBase(surface_, seed_, coarse, &add_c);
   if (surface_ != Surface::kFlat) DrawWearLowFrequency(coarse, seed_, state, &mul_c);
+  // A photo floor: the region under the image centre.
+  const PhotoRegion* region = nullptr;
+  if (surface_ == Surface::kPhoto) {
+    double cx, cy;
+    image.FloorAt(0.5 * (width - 1), 0.5 * (height - 1), &cx, &cy);
+    cx /= 1000.0;
+    cy /= 1000.0;
+    double best = std::numeric_limits<double>::max();
+    for (const auto& r : *regions_) {
+      const double dx = std::max({r.x0 - cx, 0.0, cx - (r.x0 + r.width())});
+      const double dy = std::max({r.y0 - cy, 0.0, cy - (r.y0 + r.height())});
+      if (dx * dx + dy * dy < best) {
+        best = dx * dx + dy * dy;
+        region = &r;
+      }
+    }
+  }
 
   cv::Mat fine_img(fine.h, fine.w, CV_32F);
   {
@@ -975,9 +1154,12 @@ void Floor::Render(const Homography& floor_from_image, int width, int height, in
             case Surface::kConcrete: RenderConcrete(canvas, seed_, phase); break;
             case Surface::kCarpet: RenderCarpet(canvas, seed_, phase); break;
             case Surface::kLaminate: RenderLaminate(canvas, seed_, phase, dist); break;
+            case Surface::kSmoothConcrete: RenderSmoothConcrete(canvas, seed_, phase); break;
+            case Surface::kEpoxy: RenderEpoxy(canvas, seed_, phase); break;
             case Surface::kFlat:
               if (phase == Phase::kBase) fine_img.setTo(0.5);
               break;
+            case Surface::kPhoto: RenderPhoto(canvas, region, phase); break;
           }
           if (phase == Phase::kElements) {
             if (surface_ != Surface::kFlat) DrawWearFine(canvas, seed_, state);
@@ -986,7 +1168,8 @@ void Floor::Render(const Homography& floor_from_image, int width, int height, in
         }
       }
     }
-    const bool relief = surface_ == Surface::kAsphalt || surface_ == Surface::kConcrete;
+    const bool relief = surface_ == Surface::kAsphalt || surface_ == Surface::kConcrete ||
+                        surface_ == Surface::kSmoothConcrete || surface_ == Surface::kEpoxy;
     if (relief && state.directional > 0.0) ShadeRelief(fine, canvas.height.data(), state, fine_img.ptr<float>());
   }
   if (supersample > 1) {

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <atomic>
+#include <cctype>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -14,6 +15,7 @@
 #include <opencv2/core/utility.hpp>
 #include <opencv2/imgcodecs.hpp>
 
+#include "ground_texture_bow/core/binary_io.h"
 #include "ground_texture_bow/core/file_util.h"
 #include "ground_texture_bow/core/progress.h"
 #include "noise.h"
@@ -103,6 +105,11 @@ void SynthOptions::Check() const {
   need(position_jitter >= 0, "position_jitter must be >= 0");
   need(heading_jitter >= 0, "heading_jitter must be >= 0");
   need(threads >= 0, "threads must be >= 0");
+  need(photo_meters_per_pixel >= 0 && std::isfinite(photo_meters_per_pixel),
+       "photo_meters_per_pixel must be >= 0 (0: the camera's meters_per_pixel)");
+  need(photos.empty() || train_images == 0 || !train_photos.empty(),
+       "a photo floor's train split needs training photos (--train-photo), or --train 0");
+  need(!(photos.empty() && !train_photos.empty()), "training photos need map photos (--photo)");
   for (const auto& k : only) {
     need(k == "train" || k == "database" || k == "queries",
          "only: unknown split kind '" + k + "' (valid: train, database, queries)");
@@ -123,8 +130,214 @@ double SquareAreaForImages(const SynthOptions& o, int images) {
   return hi;
 }
 
+namespace {
+
+// Drops the splits that `only` leaves out (after planning, so that poses stay those of the
+// full dataset).
+void KeepOnly(const SynthOptions& o, DatasetPlan* plan) {
+  if (o.only.empty()) return;
+  auto kind = [](const std::string& split) {
+    return split.rfind("query_", 0) == 0 ? std::string("queries") : split;
+  };
+  auto wanted = [&](const std::string& split) {
+    return std::find(o.only.begin(), o.only.end(), kind(split)) != o.only.end();
+  };
+  std::vector<PlannedImage> kept;
+  for (auto& im : plan->images) {
+    if (wanted(im.split)) kept.push_back(std::move(im));
+  }
+  plan->images.swap(kept);
+  for (auto it = plan->splits.begin(); it != plan->splits.end();) {
+    it = wanted(it->first) ? std::next(it) : plan->splits.erase(it);
+  }
+  for (auto it = plan->info.query_days.begin(); it != plan->info.query_days.end();) {
+    it = wanted(it->first) ? std::next(it) : plan->info.query_days.erase(it);
+  }
+}
+
+// A pose whose footprint (enlarged by kPhotoMargin, for the camera's scale and tilt jitter)
+// lies inside a region: the allowed box of the centre for heading theta. False when the
+// footprint cannot fit at that heading.
+constexpr double kPhotoMargin = 1.03;
+
+bool CentreBox(const PhotoRegion& r, double fw, double fh, double theta, double* x0, double* x1,
+               double* y0, double* y1) {
+  const double c = std::abs(std::cos(theta)), sn = std::abs(std::sin(theta));
+  const double hx = kPhotoMargin * 0.5 * (fw * c + fh * sn);
+  const double hy = kPhotoMargin * 0.5 * (fw * sn + fh * c);
+  *x0 = r.x0 + hx;
+  *x1 = r.x0 + r.width() - hx;
+  *y0 = r.y0 + hy;
+  *y1 = r.y0 + r.height() - hy;
+  return *x0 <= *x1 && *y0 <= *y1;
+}
+
+// Split-name-safe label: lowercase letters, digits and '_'.
+std::string SafeLabel(const std::string& s) {
+  std::string out;
+  for (unsigned char c : s) {
+    if (std::isalnum(c)) {
+      out += static_cast<char>(std::tolower(c));
+    } else if (!out.empty() && out.back() != '_') {
+      out += '_';
+    }
+  }
+  while (!out.empty() && out.back() == '_') out.pop_back();
+  return out.empty() ? "photo" : out;
+}
+
+}  // namespace
+
+std::vector<PhotoRegion> LoadPhotoFloor(const SynthOptions& o) {
+  const double mpp = o.photo_meters_per_pixel > 0 ? o.photo_meters_per_pixel : o.camera.meters_per_pixel;
+  const double fw = o.camera.width * o.camera.meters_per_pixel, fh = o.camera.height * o.camera.meters_per_pixel;
+  std::vector<PhotoRegion> regions;
+  double cursor = 0.0;
+  std::map<std::string, int> used;
+  auto add = [&](const std::filesystem::path& path) {
+    PhotoRegion r = LoadPhotoRegion(path, mpp);
+    double a, b, c, d;
+    if (!CentreBox(r, fw, fh, 0.0, &a, &b, &c, &d) && !CentreBox(r, fw, fh, M_PI / 2, &a, &b, &c, &d)) {
+      char buf[256];
+      std::snprintf(buf, sizeof(buf),
+                    ": the photo is %d x %d px (%.1f x %.1f mm at %.3f mm/px), smaller than one "
+                    "image (%.1f x %.1f mm, plus %.0f%% for the camera's scale jitter)",
+                    r.reflectance.cols, r.reflectance.rows, r.width() * 1e3, r.height() * 1e3, mpp * 1e3,
+                    fw * 1e3, fh * 1e3, (kPhotoMargin - 1.0) * 100);
+      throw std::invalid_argument("photo " + path.string() + buf);
+    }
+    r.label = SafeLabel(r.label);
+    if (used[r.label]++ > 0) r.label += "_" + std::to_string(used[r.label]);
+    r.x0 = cursor;
+    r.y0 = 0.0;
+    cursor += r.width() + 0.1;  // regions 10 cm apart
+    regions.push_back(std::move(r));
+  };
+  for (const auto& p : o.photos) add(p);
+  cursor += 0.4;  // the training photos 0.5 m from the map
+  for (const auto& p : o.train_photos) add(p);
+  return regions;
+}
+
+DatasetPlan PlanPhotoDataset(const SynthOptions& o, const std::vector<PhotoRegion>& regions) {
+  o.Check();
+  if (o.photos.empty() || regions.size() != o.photos.size() + o.train_photos.size()) {
+    throw std::invalid_argument("PlanPhotoDataset: regions do not match the options' photos");
+  }
+  DatasetPlan plan;
+  plan.info.format_version = 1;
+  const size_t nmap = o.photos.size();
+  std::string labels;
+  for (size_t i = 0; i < nmap; ++i) labels += (i > 0 ? ", " : "") + regions[i].label;
+  plan.info.surface = "photo: " + labels;
+  plan.info.name = "photo_floor_seed" + std::to_string(o.seed);
+  plan.info.geometry = o.camera.Geometry();
+  const double fw = o.camera.width * o.camera.meters_per_pixel, fh = o.camera.height * o.camera.meters_per_pixel;
+  // Random pose inside region r at any heading its footprint fits.
+  auto random_pose = [&](CellRng& rng, const PhotoRegion& r) {
+    double x0, x1, y0, y1;
+    for (int attempt = 0; attempt < 10000; ++attempt) {
+      const double theta = rng.Uniform(-M_PI, M_PI);
+      if (CentreBox(r, fw, fh, theta, &x0, &x1, &y0, &y1)) {
+        return Rounded({rng.Uniform(x0, x1), rng.Uniform(y0, y1), theta});
+      }
+    }
+    // Only near-axis headings fit (a narrow photo): use one that does.
+    const double theta = CentreBox(r, fw, fh, 0.0, &x0, &x1, &y0, &y1) ? 0.0 : M_PI / 2;
+    CentreBox(r, fw, fh, theta, &x0, &x1, &y0, &y1);
+    return Rounded({rng.Uniform(x0, x1), rng.Uniform(y0, y1), theta});
+  };
+  // A pose moved, if needed, so that its footprint lies inside region r.
+  auto fit = [&](Pose2D p, const PhotoRegion& r) {
+    double x0, x1, y0, y1;
+    if (!CentreBox(r, fw, fh, p.theta, &x0, &x1, &y0, &y1)) {
+      p.theta = std::round(p.theta / (M_PI / 2)) * (M_PI / 2);
+      if (!CentreBox(r, fw, fh, p.theta, &x0, &x1, &y0, &y1)) {
+        p.theta += M_PI / 2;
+        CentreBox(r, fw, fh, p.theta, &x0, &x1, &y0, &y1);
+      }
+    }
+    p.x = std::clamp(p.x, x0, x1);
+    p.y = std::clamp(p.y, y0, y1);
+    return p;
+  };
+  // Training images: random poses over the training photos, in turn.
+  if (o.train_images > 0) {
+    CellRng rng(HashCombine(o.seed, 0x7a1));
+    std::vector<std::string> names;
+    for (int i = 0; i < o.train_images; ++i) {
+      PlannedImage im;
+      im.split = "train";
+      im.name = ImageName("train", i);
+      im.pose = random_pose(rng, regions[nmap + i % o.train_photos.size()]);
+      im.visit = kTrainVisit;
+      names.push_back(im.name);
+      plan.images.push_back(im);
+    }
+    plan.splits["train"] = std::move(names);
+  }
+  // Database: a lawnmower path over each map photo, spaced evenly so that it ends at the edges.
+  {
+    CellRng rng(HashCombine(o.seed, 0xdb));
+    std::vector<std::string>& names = plan.splits["database"];
+    size_t index = 0;
+    for (size_t ri = 0; ri < nmap; ++ri) {
+      const PhotoRegion& r = regions[ri];
+      double x0, x1, y0, y1;
+      CentreBox(r, fw, fh, 0.0, &x0, &x1, &y0, &y1);
+      const bool upright = x0 <= x1 && y0 <= y1;  // else the path runs with the camera turned
+      const double theta0 = upright ? 0.0 : M_PI / 2;
+      CentreBox(r, fw, fh, theta0, &x0, &x1, &y0, &y1);
+      const double step_x = (1.0 - o.overlap) * (upright ? fw : fh);
+      const double step_y = (1.0 - o.overlap) * (upright ? fh : fw);
+      const int cols = static_cast<int>(std::ceil((x1 - x0) / std::max(1e-9, step_x) - 1e-9)) + 1;
+      const int rows = static_cast<int>(std::ceil((y1 - y0) / std::max(1e-9, step_y) - 1e-9)) + 1;
+      for (int row = 0; row < rows; ++row) {
+        const bool forward = (row % 2) == 0;
+        for (int c = 0; c < cols; ++c) {
+          const int cc = forward ? c : cols - 1 - c;
+          const double x = cols == 1 ? 0.5 * (x0 + x1) : x0 + (x1 - x0) * cc / (cols - 1);
+          const double y = rows == 1 ? 0.5 * (y0 + y1) : y0 + (y1 - y0) * row / (rows - 1);
+          Pose2D p{x + o.position_jitter * rng.Normal(), y + o.position_jitter * rng.Normal(),
+                   theta0 + (forward ? 0.0 : M_PI) + o.heading_jitter * rng.Normal()};
+          PlannedImage im;
+          im.split = "database";
+          im.name = ImageName("database", index++);
+          im.pose = Rounded(fit(p, r));
+          im.visit = kDatabaseVisit;
+          names.push_back(im.name);
+          plan.images.push_back(im);
+        }
+      }
+    }
+  }
+  // Queries: per day, and per photo when there are several, at random poses.
+  for (size_t k = 0; k < o.query_days.size() && o.queries_per_split > 0; ++k) {
+    const int day = o.query_days[k];
+    for (size_t ri = 0; ri < nmap; ++ri) {
+      const std::string split = QuerySplitName(day) + (nmap > 1 ? "_" + regions[ri].label : "");
+      plan.info.query_days[split] = day;
+      CellRng rng(HashCombine(HashCombine(o.seed, 0x9e000 + static_cast<uint64_t>(day)), ri));
+      std::vector<std::string>& names = plan.splits[split];
+      for (int i = 0; i < o.queries_per_split; ++i) {
+        PlannedImage im;
+        im.split = split;
+        im.name = ImageName(split, i);
+        im.pose = random_pose(rng, regions[ri]);
+        im.day = day;
+        im.visit = kFirstQueryVisit + k;
+        names.push_back(im.name);
+        plan.images.push_back(im);
+      }
+    }
+  }
+  KeepOnly(o, &plan);
+  return plan;
+}
+
 DatasetPlan PlanDataset(const SynthOptions& o) {
   o.Check();
+  if (!o.photos.empty()) return PlanPhotoDataset(o, LoadPhotoFloor(o));
   DatasetPlan plan;
   plan.info.format_version = 1;
   plan.info.surface = SurfaceName(o.surface);
@@ -216,25 +429,7 @@ DatasetPlan PlanDataset(const SynthOptions& o) {
       plan.images.push_back(im);
     }
   }
-  if (!o.only.empty()) {
-    auto kind = [](const std::string& split) {
-      return split.rfind("query_", 0) == 0 ? std::string("queries") : split;
-    };
-    auto wanted = [&](const std::string& split) {
-      return std::find(o.only.begin(), o.only.end(), kind(split)) != o.only.end();
-    };
-    std::vector<PlannedImage> kept;
-    for (auto& im : plan.images) {
-      if (wanted(im.split)) kept.push_back(std::move(im));
-    }
-    plan.images.swap(kept);
-    for (auto it = plan.splits.begin(); it != plan.splits.end();) {
-      it = wanted(it->first) ? std::next(it) : plan.splits.erase(it);
-    }
-    for (auto it = plan.info.query_days.begin(); it != plan.info.query_days.end();) {
-      it = wanted(it->first) ? std::next(it) : plan.info.query_days.erase(it);
-    }
-  }
+  KeepOnly(o, &plan);
   return plan;
 }
 
@@ -265,8 +460,10 @@ cv::Mat RenderPlannedImage(const Floor& floor, const Camera& camera, const Synth
 SynthSummary GenerateDataset(const SynthOptions& o, const fs::path& out, bool force,
                              bool progress) {
   const auto start = std::chrono::steady_clock::now();
-  const DatasetPlan plan = PlanDataset(o);
-  const Floor floor(o.surface, o.seed);
+  std::vector<PhotoRegion> regions;
+  if (!o.photos.empty()) regions = LoadPhotoFloor(o);
+  const DatasetPlan plan = regions.empty() ? PlanDataset(o) : PlanPhotoDataset(o, regions);
+  const Floor floor = regions.empty() ? Floor(o.surface, o.seed) : Floor(regions, o.seed);
   const Camera camera(o.camera);
   const fs::path staging = StageDirectory(out, force);
   SynthSummary summary;
@@ -317,7 +514,8 @@ SynthSummary GenerateDataset(const SynthOptions& o, const fs::path& out, bool fo
     WriteDatasetFiles(staging, plan.info, poses, plan.splits);
     // Provenance: how this dataset was made (an extra file the format allows).
     std::ostringstream prov;
-    prov << "# gtbow synth parameters\nsurface: " << SurfaceName(o.surface) << "\nseed: " << o.seed
+    prov << "# gtbow synth parameters\nsurface: " << (regions.empty() ? SurfaceName(o.surface) : "photo")
+         << "\nseed: " << o.seed
          << "\narea_width: " << o.area_width << "\narea_height: " << o.area_height
          << "\noverlap: " << o.overlap << "\ntrain_images: " << o.train_images
          << "\nqueries_per_split: " << o.queries_per_split << "\naging: " << o.aging
@@ -328,6 +526,22 @@ SynthSummary GenerateDataset(const SynthOptions& o, const fs::path& out, bool fo
          << "\nlight_directional: " << o.camera.light_directional
          << "\nlight_azimuth: " << o.camera.light_azimuth
          << "\nlight_elevation: " << o.camera.light_elevation << "\n";
+    if (!regions.empty()) {
+      // Each photograph: file name, checksum of its bytes, scale and where it lies on the floor.
+      prov << "photo_regions:\n";
+      for (size_t i = 0; i < regions.size(); ++i) {
+        const auto& r = regions[i];
+        const std::string bytes = ReadFile(r.path);
+        char line[512];
+        std::snprintf(line, sizeof(line),
+                      "  - {file: \"%s\", use: %s, label: %s, checksum: %016llx, meters_per_pixel: %.9g, "
+                      "x0: %.6f, y0: %.6f, width: %.6f, height: %.6f}\n",
+                      r.path.filename().string().c_str(), i < o.photos.size() ? "map" : "train",
+                      r.label.c_str(), static_cast<unsigned long long>(Checksum64(bytes.data(), bytes.size())),
+                      r.meters_per_pixel, r.x0, r.y0, r.width(), r.height());
+        prov << line;
+      }
+    }
     WriteFileAtomic(staging / "synth.yaml", prov.str());
     for (const auto& entry : fs::recursive_directory_iterator(staging)) {
       if (entry.is_regular_file()) summary.bytes += entry.file_size();

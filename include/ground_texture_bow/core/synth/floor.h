@@ -7,6 +7,8 @@
 
 #include <array>
 #include <cstdint>
+#include <filesystem>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -15,10 +17,15 @@
 namespace gtbow {
 namespace synth {
 
-enum class Surface { kAsphalt, kConcrete, kCarpet, kLaminate, kFlat };
+// Low-contrast floors: kSmoothConcrete (power-trowelled or polished: faint cement-paste mottling,
+// fine sand, rare pinholes, trowel swirls) and kEpoxy (a painted or epoxy coating: orange peel,
+// roller marks, dust specks, hairline scratches). kPhoto: the floor is made of photographs
+// (PhotoRegion), not procedural.
+enum class Surface { kAsphalt, kConcrete, kCarpet, kLaminate, kFlat, kSmoothConcrete, kEpoxy, kPhoto };
 
-// Parses "asphalt", "concrete", "carpet", "laminate" or "flat"; throws std::invalid_argument
-// listing the valid names otherwise.
+// Parses "asphalt", "concrete", "carpet", "laminate", "smooth_concrete", "epoxy" or "flat";
+// throws std::invalid_argument listing the valid names otherwise. ("photo" is not parsed: a
+// photo floor needs photographs.)
 Surface ParseSurface(const std::string& name);
 std::string SurfaceName(Surface surface);
 // The names ParseSurface accepts, for help texts.
@@ -52,9 +59,32 @@ struct FloorState {
   double light_elevation = 0.7;  // radians above the floor, (0, pi/2]
 };
 
+// A bounded region of a photo floor: a top-down photograph of a real floor laid on the floor
+// frame with its image axes along the floor axes (a camera at theta = 0 sees it upright).
+// Photo pixel (pu, pv) covers floor [x0 + pu s, x0 + (pu + 1) s] x [y0 + pv s, y0 + (pv + 1) s]
+// with s = meters_per_pixel.
+struct PhotoRegion {
+  std::filesystem::path path;   // where it was read from
+  std::string label;            // a short name (the file's stem), used in split names
+  double meters_per_pixel = 0;  // ground size of a photo pixel, metres
+  double x0 = 0, y0 = 0;        // floor position of the photo's top-left corner, metres
+  cv::Mat reflectance;          // CV_32F grey values in [0, 1]
+  double width() const { return reflectance.cols * meters_per_pixel; }    // metres
+  double height() const { return reflectance.rows * meters_per_pixel; }   // metres
+};
+
+// Reads a photograph (PNG, JPEG, TIFF, BMP, ...: what OpenCV decodes; 8- or 16-bit, grey or
+// colour, converted to grey) as a region at the origin. Throws std::invalid_argument naming the
+// file when it is missing, not an image, or of a format that cannot be decoded.
+PhotoRegion LoadPhotoRegion(const std::filesystem::path& path, double meters_per_pixel);
+
 class Floor {
  public:
   Floor(Surface surface, uint64_t seed);
+  // A photo floor: the regions (which must not overlap) with the ageing model of the procedural
+  // floors on top (grime, stains, tyre marks, scuffs, debris). Views must lie inside one region;
+  // a view that strays over its edge sees the edge pixels repeated.
+  Floor(std::vector<PhotoRegion> regions, uint64_t seed);
 
   // Renders floor reflectance (about [0, 1]) into `out` (CV_32F, height x width): pixel (u, v)
   // sees the floor around floor_from_image * (u, v, 1), averaged over supersample x supersample
@@ -64,10 +94,12 @@ class Floor {
 
   Surface surface() const { return surface_; }
   uint64_t seed() const { return seed_; }
+  const std::vector<PhotoRegion>& regions() const { return *regions_; }
 
  private:
   Surface surface_;
   uint64_t seed_;
+  std::shared_ptr<const std::vector<PhotoRegion>> regions_;  // photo floors; empty otherwise
 };
 
 }  // namespace synth

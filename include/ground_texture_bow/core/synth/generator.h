@@ -39,6 +39,15 @@ struct SynthOptions {
   // Render only these kinds of split ("train", "database", "queries"); empty = all. Poses
   // are those of the full dataset, so partial datasets of one seed fit together.
   std::vector<std::string> only;
+  // A photo floor instead of a procedural one (gtbow synth --photo): each photograph is one
+  // bounded region of the map, laid side by side on the floor; no image crosses a region's
+  // edge. The database is a lawnmower path over each region; every query split is split per
+  // photo (query_dayNNN_<stem>, queries_per_split each) when there are several, at random
+  // poses and headings; the train split comes from `train_photos`. The ageing model (grime,
+  // stains, tyre marks, scuffs, debris) applies on top of the photos; relief shading does not.
+  std::vector<std::filesystem::path> photos;
+  std::vector<std::filesystem::path> train_photos;
+  double photo_meters_per_pixel = 0.0;   // ground size of a photo pixel, metres; 0 = the camera's
 
   // Throws std::invalid_argument naming the first bad field.
   void Check() const;
@@ -63,8 +72,16 @@ struct DatasetPlan {
   std::map<std::string, std::vector<std::string>> splits;
 };
 
-// Lays out every image and its pose without rendering anything.
+// Lays out every image and its pose without rendering anything (a photo floor's photographs
+// are read for their sizes).
 DatasetPlan PlanDataset(const SynthOptions& options);
+
+// The photographs of a photo floor laid out side by side on the floor (the map's, then after a
+// 0.5 m gap the training photos), each checked to hold at least one image. Throws
+// std::invalid_argument naming the file of a missing, undecodable or too small photo.
+std::vector<PhotoRegion> LoadPhotoFloor(const SynthOptions& options);
+// PlanDataset for a photo floor whose regions are already loaded.
+DatasetPlan PlanPhotoDataset(const SynthOptions& options, const std::vector<PhotoRegion>& regions);
 
 // The lighting of a recording session.
 Lighting VisitLighting(uint64_t seed, uint64_t visit);

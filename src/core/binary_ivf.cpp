@@ -1,0 +1,223 @@
+#include "binary_ivf.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <limits>
+#include <numeric>
+#include <random>
+#include <thread>
+
+#include "ground_texture_bow/core/binary_io.h"
+#include "hamming_distance.h"
+
+namespace gtbow {
+
+namespace {
+
+// Runs f(begin, end) over [0, n) in contiguous chunks on `threads` threads.
+template <typename F>
+void Chunks(size_t n, int threads, F&& f) {
+  threads = std::max(1, std::min<int>(threads, static_cast<int>(n / 256) + 1));
+  std::vector<std::thread> pool;
+  const size_t chunk = (n + threads - 1) / threads;
+  for (int t = 1; t < threads; ++t) {
+    const size_t b = t * chunk, e = std::min(n, b + chunk);
+    if (b < e) pool.emplace_back([&f, b, e]() { f(b, e); });
+  }
+  f(0, std::min(n, chunk));
+  for (auto& th : pool) th.join();
+}
+
+std::vector<uint64_t> PackedQuery(const uint8_t* q, int bytes) {
+  std::vector<uint64_t> out(bytes / 8);
+  std::memcpy(out.data(), q, bytes);
+  return out;
+}
+
+// Order of hits: by distance, ties by word id (independent of the order lists are visited).
+inline bool Closer(const WordHit& a, const WordHit& b) {
+  return a.distance != b.distance ? a.distance < b.distance : a.word < b.word;
+}
+
+}  // namespace
+
+BinaryIvfIndex::BinaryIvfIndex(const cv::Mat& words, uint64_t seed, int threads)
+    : bytes_(words.cols), chunks_(words.cols / 8) {
+  if (words.type() != CV_8U || words.cols % 8 != 0 || words.rows < 1) {
+    throw std::invalid_argument("BinaryIvfIndex: words must be CV_8U rows of a multiple of 8 bytes");
+  }
+  if (threads <= 0) threads = static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
+  const int v = words.rows;
+  const int nlist = std::max(1, static_cast<int>(std::lround(std::sqrt(static_cast<double>(v)))));
+  std::mt19937_64 rng(seed ^ 0xb1f1f);
+  std::vector<int> order(v);
+  std::iota(order.begin(), order.end(), 0);
+  std::shuffle(order.begin(), order.end(), rng);
+  coarse_.create(nlist, bytes_, CV_8U);
+  for (int c = 0; c < nlist; ++c) words.row(order[c]).copyTo(coarse_.row(c));
+  std::vector<uint32_t> label(v, 0);
+  const int bits = bytes_ * 8;
+  for (int it = 0; it < 10; ++it) {
+    coarse_packed_.clear();
+    PackBinaryRows(coarse_.ptr<uint8_t>(), nlist, bytes_, &coarse_packed_);
+    Chunks(static_cast<size_t>(v), threads, [&](size_t b, size_t e) {
+      std::vector<uint32_t> idx(nlist), dist(nlist);
+      for (size_t i = b; i < e; ++i) {
+        const auto q = PackedQuery(words.ptr<uint8_t>(static_cast<int>(i)), bytes_);
+        HammingBelow(q.data(), coarse_packed_.data(), nlist, chunks_, std::numeric_limits<uint32_t>::max(),
+                     idx.data(), dist.data());
+        label[i] = static_cast<uint32_t>(std::min_element(dist.begin(), dist.end()) - dist.begin());
+      }
+    });
+    // Bitwise-majority centres; an empty list restarts at a random word.
+    std::vector<uint32_t> count(nlist, 0), ones(static_cast<size_t>(nlist) * bits, 0);
+    for (int i = 0; i < v; ++i) {
+      ++count[label[i]];
+      const uint8_t* x = words.ptr<uint8_t>(i);
+      uint32_t* o = ones.data() + static_cast<size_t>(label[i]) * bits;
+      for (int k = 0; k < bits; ++k) o[k] += (x[k >> 3] >> (7 - (k & 7))) & 1;
+    }
+    std::uniform_int_distribution<int> pick(0, v - 1);
+    for (int c = 0; c < nlist; ++c) {
+      uint8_t* out = coarse_.ptr<uint8_t>(c);
+      if (count[c] == 0) {
+        words.row(pick(rng)).copyTo(coarse_.row(c));
+        continue;
+      }
+      std::fill(out, out + bytes_, 0);
+      const uint32_t* o = ones.data() + static_cast<size_t>(c) * bits;
+      for (int k = 0; k < bits; ++k) {
+        if (2 * o[k] > count[c]) out[k >> 3] |= static_cast<uint8_t>(1 << (7 - (k & 7)));
+      }
+    }
+  }
+  // Final lists: each word in the list of its nearest (final) centre.
+  coarse_packed_.clear();
+  PackBinaryRows(coarse_.ptr<uint8_t>(), nlist, bytes_, &coarse_packed_);
+  Chunks(static_cast<size_t>(v), threads, [&](size_t b, size_t e) {
+    std::vector<uint32_t> idx(nlist), dist(nlist);
+    for (size_t i = b; i < e; ++i) {
+      const auto q = PackedQuery(words.ptr<uint8_t>(static_cast<int>(i)), bytes_);
+      HammingBelow(q.data(), coarse_packed_.data(), nlist, chunks_, std::numeric_limits<uint32_t>::max(),
+                   idx.data(), dist.data());
+      label[i] = static_cast<uint32_t>(std::min_element(dist.begin(), dist.end()) - dist.begin());
+    }
+  });
+  offsets_.assign(nlist + 1, 0);
+  for (uint32_t l : label) ++offsets_[l + 1];
+  for (int c = 0; c < nlist; ++c) offsets_[c + 1] += offsets_[c];
+  ids_.resize(v);
+  std::vector<uint32_t> fill(offsets_.begin(), offsets_.end() - 1);
+  for (int i = 0; i < v; ++i) ids_[fill[label[i]]++] = static_cast<uint32_t>(i);
+  Pack(words);
+}
+
+BinaryIvfIndex::BinaryIvfIndex(const cv::Mat& words, BinaryReader* r)
+    : bytes_(words.cols), chunks_(words.cols / 8) {
+  if (words.type() != CV_8U || words.cols % 8 != 0) r->Fail("binary IVF lists for words that are not binary");
+  const int32_t nlist = r->Get<int32_t>();
+  if (nlist < 1 || nlist > words.rows) r->Fail("invalid binary IVF header");
+  auto coarse = r->GetVector<uint8_t>(static_cast<uint64_t>(nlist) * bytes_);
+  offsets_ = r->GetVector<uint32_t>(static_cast<uint64_t>(nlist) + 1);
+  ids_ = r->GetVector<uint32_t>(static_cast<uint64_t>(words.rows));
+  if (coarse.size() != static_cast<size_t>(nlist) * bytes_ || offsets_.size() != static_cast<size_t>(nlist) + 1 ||
+      ids_.size() != static_cast<size_t>(words.rows) || offsets_.front() != 0 ||
+      offsets_.back() != static_cast<uint32_t>(words.rows)) {
+    r->Fail("invalid binary IVF lists");
+  }
+  for (int c = 0; c < nlist; ++c) {
+    if (offsets_[c] > offsets_[c + 1]) r->Fail("invalid binary IVF lists");
+  }
+  std::vector<uint8_t> seen(words.rows, 0);
+  for (uint32_t id : ids_) {
+    if (id >= static_cast<uint32_t>(words.rows) || seen[id]++) r->Fail("invalid binary IVF word id");
+  }
+  coarse_ = cv::Mat(nlist, bytes_, CV_8U, coarse.data()).clone();
+  PackBinaryRows(coarse_.ptr<uint8_t>(), nlist, bytes_, &coarse_packed_);
+  Pack(words);
+}
+
+void BinaryIvfIndex::Pack(const cv::Mat& words) {
+  const int nlist = coarse_.rows;
+  packed_.clear();
+  packed_offsets_.resize(nlist);
+  std::vector<uint8_t> rows;
+  for (int c = 0; c < nlist; ++c) {
+    packed_offsets_[c] = packed_.size();
+    const uint32_t b = offsets_[c], e = offsets_[c + 1];
+    rows.resize(static_cast<size_t>(e - b) * bytes_);
+    for (uint32_t k = b; k < e; ++k) {
+      std::memcpy(rows.data() + static_cast<size_t>(k - b) * bytes_, words.ptr<uint8_t>(static_cast<int>(ids_[k])),
+                  bytes_);
+    }
+    PackBinaryRows(rows.data(), static_cast<int>(e - b), bytes_, &packed_);
+  }
+}
+
+void BinaryIvfIndex::Save(BinaryWriter* w) const {
+  w->Put<int32_t>(coarse_.rows);
+  w->PutArray(coarse_.ptr<uint8_t>(), coarse_.total());
+  w->PutVector(offsets_);
+  w->PutVector(ids_);
+}
+
+void BinaryIvfIndex::Search(const cv::Mat& q, int r, int nprobe, std::vector<WordHit>* out) const {
+  if (q.type() != CV_8U || q.cols != bytes_) {
+    throw std::invalid_argument("BinaryIvfIndex::Search: descriptors must be CV_8U rows of " +
+                                std::to_string(bytes_) + " bytes");
+  }
+  const int nlist = coarse_.rows;
+  nprobe = std::max(1, std::min(nprobe, nlist));
+  out->assign(static_cast<size_t>(q.rows) * r, WordHit{0, std::numeric_limits<float>::infinity()});
+  std::vector<uint64_t> pq(static_cast<size_t>(q.rows) * chunks_);
+  for (int i = 0; i < q.rows; ++i) std::memcpy(pq.data() + static_cast<size_t>(i) * chunks_, q.ptr<uint8_t>(i), bytes_);
+  // list -> descriptors probing it
+  std::vector<std::vector<int>> visitors(nlist);
+  if (nprobe == nlist) {
+    for (auto& v : visitors) {
+      v.resize(q.rows);
+      std::iota(v.begin(), v.end(), 0);
+    }
+  } else {
+    std::vector<uint32_t> idx(nlist), dist(nlist);
+    std::vector<uint64_t> key(nlist);
+    for (int i = 0; i < q.rows; ++i) {
+      HammingBelow(pq.data() + static_cast<size_t>(i) * chunks_, coarse_packed_.data(), nlist, chunks_,
+                   std::numeric_limits<uint32_t>::max(), idx.data(), dist.data());
+      for (int c = 0; c < nlist; ++c) key[c] = (static_cast<uint64_t>(dist[c]) << 32) | static_cast<uint32_t>(c);
+      std::nth_element(key.begin(), key.begin() + (nprobe - 1), key.end());
+      for (int p = 0; p < nprobe; ++p) visitors[static_cast<uint32_t>(key[p])].push_back(i);
+    }
+  }
+  // Each list's words are read once for all the descriptors that probe it.
+  std::vector<uint32_t> idx, dist;
+  for (int list = 0; list < nlist; ++list) {
+    if (visitors[list].empty()) continue;
+    const uint32_t b = offsets_[list], e = offsets_[list + 1];
+    idx.resize(e - b);
+    dist.resize(e - b);
+    const uint64_t* blocks = packed_.data() + packed_offsets_[list];
+    for (int i : visitors[list]) {
+      WordHit* best = out->data() + static_cast<size_t>(i) * r;  // sorted by Closer
+      const float worst = best[r - 1].distance;
+      // Distances up to the current worst (ties may still win on the word id).
+      const uint32_t threshold = std::isinf(worst) ? std::numeric_limits<uint32_t>::max()
+                                                   : static_cast<uint32_t>(worst) + 1;
+      const int found = HammingBelow(pq.data() + static_cast<size_t>(i) * chunks_, blocks,
+                                     static_cast<int>(e - b), chunks_, threshold, idx.data(), dist.data());
+      for (int j = 0; j < found; ++j) {
+        const WordHit hit{ids_[b + idx[j]], static_cast<float>(dist[j])};
+        if (!Closer(hit, best[r - 1])) continue;
+        int m = r - 1;
+        while (m > 0 && Closer(hit, best[m - 1])) {
+          best[m] = best[m - 1];
+          --m;
+        }
+        best[m] = hit;
+      }
+    }
+  }
+}
+
+}  // namespace gtbow

@@ -1,0 +1,49 @@
+// An inverted file over binary words (Hamming metric): the words are grouped around about
+// sqrt(V) binary coarse centres (k-means under Hamming distance, bitwise-majority centres); a
+// descriptor is compared exhaustively, with a SIMD popcount, with the words of the `nprobe`
+// lists whose centres are nearest. With nprobe >= num_lists() the search is exact. Private to
+// the core (vocabulary.cpp uses it for query-time word search and for k-means training).
+#pragma once
+
+#include <cstdint>
+#include <vector>
+
+#include <opencv2/core.hpp>
+
+#include "ground_texture_bow/core/vocabulary.h"
+
+namespace gtbow {
+
+class BinaryReader;
+class BinaryWriter;
+
+class BinaryIvfIndex {
+ public:
+  // Groups the rows of `words` (V x bytes, CV_8U, bytes % 8 == 0) into lists; deterministic
+  // for a seed.
+  BinaryIvfIndex(const cv::Mat& words, uint64_t seed, int threads);
+  // Restores lists saved by Save() for the same words; fails through `r` when inconsistent.
+  BinaryIvfIndex(const cv::Mat& words, BinaryReader* r);
+
+  void Save(BinaryWriter* w) const;
+  int num_lists() const { return coarse_.rows; }
+
+  // The r nearest words of each row of `q` (CV_8U) among the lists of its `nprobe` nearest
+  // centres, sorted by (distance in bits, word id): out[i * r + j]. Fewer than r candidates
+  // (tiny vocabularies) leave the rest at distance +inf.
+  void Search(const cv::Mat& q, int r, int nprobe, std::vector<WordHit>* out) const;
+
+ private:
+  void Pack(const cv::Mat& words);
+
+  int bytes_;
+  int chunks_;
+  cv::Mat coarse_;                   // nlist x bytes binary centres
+  std::vector<uint32_t> offsets_;    // list c holds positions [offsets_[c], offsets_[c + 1])
+  std::vector<uint32_t> ids_;        // word id at each position
+  std::vector<uint64_t> packed_;     // the words in list order, packed per list
+  std::vector<size_t> packed_offsets_;  // list c starts at packed_[packed_offsets_[c]]
+  std::vector<uint64_t> coarse_packed_;
+};
+
+}  // namespace gtbow
