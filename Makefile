@@ -8,6 +8,10 @@
 #                   row on it, and write docs/RESULTS.md with the plots
 #   make bench-scaling  the scaling benchmark, 1,000 to 1,000,000 images (real, then synthetic),
 #                   into docs/RESULTS.md
+#   make benchmark-real  the presets on datasets cut from real floor photos (REAL_FLOORS, default
+#                   ../shared/real_floors), a table per surface into docs/RESULTS.md
+#   make benchmark-authors  our presets beside the authors' choices (each alone and together)
+#                   on the 4,000-image dataset issue 14 measured the authors' code on
 SHELL := /bin/bash
 # Debian's catkin lives in /usr/bin's python3; a pyenv python3 earlier on PATH cannot see it.
 export PATH := /usr/bin:$(PATH)
@@ -21,7 +25,10 @@ CATKIN    := catkin_make -C $(WS) -DCMAKE_BUILD_TYPE=Release -j$(JOBS)
 BENCH_DATA ?= $(CURDIR)/build/benchmark/asphalt32k
 BENCH_OUT  ?= $(CURDIR)/build/benchmark/eval
 
-.PHONY: deps build demo test test-sanitize fuzz soak benchmark bench-scaling bench-data clean
+.PHONY: deps build demo test test-sanitize fuzz soak benchmark bench-scaling bench-data clean \
+  benchmark-real benchmark-authors
+
+REAL_FLOORS ?= $(abspath $(CURDIR)/../shared/real_floors)
 
 deps:
 	@bash scripts/install_deps.sh
@@ -88,6 +95,16 @@ benchmark: bench-data
 bench-scaling: bench-data
 	@$(GTBOW) bench --dataset $(BENCH_DATA) --out build/bench_scaling
 	@python3 scripts/write_scaling.py build/bench_scaling docs
+
+# Ten real floor photos (seven textured, three smooth concrete) as bounded regions, 320 x 240
+# images at 0.5 mm per pixel, days 0 and 180, every preset (about 5 minutes).
+benchmark-real: build
+	@bash scripts/benchmark_real.sh $(GTBOW) "$(REAL_FLOORS)" build/benchmark/real build/benchmark/real_eval
+
+# The dataset issue 14 measured the authors' code on (rendered once), our presets and each of
+# the authors' choices alone and together (about 15 minutes).
+benchmark-authors: build
+	@bash scripts/benchmark_authors.sh $(GTBOW) build/benchmark/s4k build/benchmark/authors_eval
 
 clean:
 	rm -rf build

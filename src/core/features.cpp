@@ -111,46 +111,59 @@ ImageFeatures FeatureExtractor::Extract(const cv::Mat& gray) const {
   if (!adaptive_) {
     detector_->detectAndCompute(image, cv::noArray(), kps, desc);
   } else {
-    // Detection at falling thresholds until the image yields num_features candidates.
-    for (const auto& d : detectors_) {
-      kps.clear();
-      d->detect(image, kps);
-      if (kps.size() >= static_cast<size_t>(options_.num_features)) break;
+    // Detection at falling thresholds until the image yields num_features candidates. With a
+    // single threshold the candidates' descriptors come with the detection (one pyramid).
+    cv::Mat all_desc;
+    if (detectors_.size() == 1) {
+      detectors_[0]->detectAndCompute(image, cv::noArray(), kps, all_desc);
+    } else {
+      for (const auto& d : detectors_) {
+        kps.clear();
+        d->detect(image, kps);
+        if (kps.size() >= static_cast<size_t>(options_.num_features)) break;
+      }
     }
-    if (options_.grid_cols > 0 && kps.size() > static_cast<size_t>(options_.num_features)) {
+    const size_t want = static_cast<size_t>(options_.num_features);
+    std::vector<size_t> order(kps.size());
+    std::iota(order.begin(), order.end(), 0);
+    std::stable_sort(order.begin(), order.end(),
+                     [&](size_t a, size_t b) { return kps[a].response > kps[b].response; });
+    std::vector<size_t> chosen;
+    if (options_.grid_cols > 0 && kps.size() > want) {
       // Best-first, at most a cell's share per cell, then the rest best-first.
       const int cols = options_.grid_cols, rows = options_.grid_rows;
-      const size_t quota = (options_.num_features + cols * rows - 1) / (cols * rows);
-      std::vector<size_t> order(kps.size());
-      std::iota(order.begin(), order.end(), 0);
-      std::stable_sort(order.begin(), order.end(),
-                       [&](size_t a, size_t b) { return kps[a].response > kps[b].response; });
+      const size_t quota = (want + cols * rows - 1) / (cols * rows);
       std::vector<size_t> per_cell(static_cast<size_t>(cols) * rows, 0);
       std::vector<uint8_t> taken(kps.size(), 0);
-      std::vector<cv::KeyPoint> kept;
-      kept.reserve(options_.num_features);
       for (size_t i : order) {
         const int cx = std::clamp(static_cast<int>(kps[i].pt.x * cols / image.cols), 0, cols - 1);
         const int cy = std::clamp(static_cast<int>(kps[i].pt.y * rows / image.rows), 0, rows - 1);
         size_t& n = per_cell[static_cast<size_t>(cy) * cols + cx];
-        if (n < quota && kept.size() < static_cast<size_t>(options_.num_features)) {
+        if (n < quota && chosen.size() < want) {
           ++n;
           taken[i] = 1;
-          kept.push_back(kps[i]);
+          chosen.push_back(i);
         }
       }
       for (size_t i : order) {
-        if (kept.size() >= static_cast<size_t>(options_.num_features)) break;
-        if (!taken[i]) kept.push_back(kps[i]);
+        if (chosen.size() >= want) break;
+        if (!taken[i]) chosen.push_back(i);
       }
-      kps.swap(kept);
-    } else if (kps.size() > static_cast<size_t>(options_.num_features)) {
-      std::stable_sort(kps.begin(), kps.end(),
-                       [](const cv::KeyPoint& a, const cv::KeyPoint& b) { return a.response > b.response; });
-      kps.resize(options_.num_features);
+    } else {
+      chosen.assign(order.begin(), order.begin() + std::min(want, order.size()));
     }
-    // Descriptors of the chosen keypoints (their orientation and pyramid level are kept).
-    if (!kps.empty()) detector_->compute(image, kps, desc);
+    std::vector<cv::KeyPoint> kept;
+    kept.reserve(chosen.size());
+    for (size_t i : chosen) kept.push_back(kps[i]);
+    if (!all_desc.empty()) {
+      desc.create(static_cast<int>(chosen.size()), all_desc.cols, all_desc.type());
+      for (size_t j = 0; j < chosen.size(); ++j) all_desc.row(static_cast<int>(chosen[j])).copyTo(desc.row(static_cast<int>(j)));
+      kps.swap(kept);
+    } else {
+      kps.swap(kept);
+      // Descriptors of the chosen keypoints (their orientation and pyramid level are kept).
+      if (!kps.empty()) detector_->compute(image, kps, desc);
+    }
   }
   ImageFeatures out;
   out.keypoints.reserve(kps.size());

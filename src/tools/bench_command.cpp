@@ -56,7 +56,7 @@ void RunOne(const BenchArgs& a, const std::string& preset, const RetrievalConfig
 void RunBench(const BenchArgs& a) {
   std::vector<RetrievalConfig> configs;
   for (const auto& p : a.presets) configs.push_back(LoadRetrievalConfig(p));
-  if (configs.empty()) configs.emplace_back();
+  if (configs.empty()) configs.push_back(LoadRetrievalConfig(GTBOW_CONFIG_DIR "/high_accuracy.yaml"));
   if (!a.ann.empty()) {
     for (auto& c : configs) c.vocabulary.ann = ParseAnnIndex(a.ann);
   }
@@ -76,7 +76,7 @@ void RunBench(const BenchArgs& a) {
   db_src.Subsample(a.max_images);
   const auto feats = ExtractAllCached(db_src, configs[0].features, DefaultCacheDir(), a.threads, !a.quiet);
   for (size_t i = 0; i < configs.size(); ++i) {
-    RunOne(a, a.presets.empty() ? std::string("defaults") : a.presets[i], configs[i], vocab.get(),
+    RunOne(a, a.presets.empty() ? std::string("high_accuracy") : a.presets[i], configs[i], vocab.get(),
            vocab_load_ms, db_src, feats);
   }
 }

@@ -369,10 +369,8 @@ void RunScaling(ScalingArgs a) {
   std::vector<std::pair<std::string, RetrievalConfig>> presets;
   for (const auto& p : a.presets) presets.emplace_back(fs::path(p).stem().string(), LoadRetrievalConfig(p));
   if (presets.empty()) {
-    RetrievalConfig fast;
-    fast.bow.soft_assignment = 1;
-    presets.emplace_back("high_accuracy", RetrievalConfig{});
-    presets.emplace_back("fast", fast);
+    presets.emplace_back("high_accuracy", LoadRetrievalConfig(GTBOW_CONFIG_DIR "/high_accuracy.yaml"));
+    presets.emplace_back("fast", LoadRetrievalConfig(GTBOW_CONFIG_DIR "/fast.yaml"));
   }
   const fs::path out = a.out;
   fs::create_directories(out);

@@ -629,9 +629,11 @@ void RunEval(const EvalArgs& a) {
     }
   }
   if (presets.empty()) {
-    presets.emplace_back();
+    presets.emplace_back(GTBOW_CONFIG_DIR "/high_accuracy.yaml");
     rows.emplace_back();
   }
+  // Every preset is read now: a typo in the last of several presets fails before hours of work.
+  for (const auto& p : presets) (void)LoadRetrievalConfig(p);
   // Outputs are staged, so that a failed run leaves no half-written results.
   const fs::path staging = StageDirectory(a.out, true);
   std::vector<std::pair<std::string, std::string>> dumps;  // (path, contents)

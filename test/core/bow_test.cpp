@@ -171,5 +171,51 @@ TEST(Bow, EmptyImageAndBadOptions) {
   EXPECT_THROW(o.Check(), std::invalid_argument);
 }
 
+TEST(Bow, PerBinNormalisationWeighsEveryNonEmptySizeBinTheSame) {
+  auto v = HandMade();
+  const auto w = WordOf(*v);
+  // Three keypoints in bin 0 (two words) and one in bin 2.
+  ImageFeatures f;
+  for (auto [value, octave] : {std::pair<uint8_t, int>{0, 0}, {0, 0}, {100, 0}, {200, 2}}) {
+    const ImageFeatures k = OneKeypoint(value, octave);
+    f.keypoints.push_back(k.keypoints[0]);
+    f.descriptors.push_back(k.descriptors);
+  }
+  BowOptions o;
+  o.soft_assignment = 1;
+  o.num_size_bins = 4;
+  o.normalization = Normalization::kPerBin;
+  const BowVector pb = BowEncoder(*v, o).Encode(f);
+  o.normalization = Normalization::kGlobal;
+  const BowVector gl = BowEncoder(*v, o).Encode(f);
+  std::map<uint32_t, double> bin_norm_pb, bin_norm_gl;
+  double total = 0;
+  for (const auto& e : pb.entries) {
+    bin_norm_pb[e.row / v->size()] += e.weight * e.weight;
+    total += e.weight * e.weight;
+  }
+  for (const auto& e : gl.entries) bin_norm_gl[e.row / v->size()] += e.weight * e.weight;
+  EXPECT_NEAR(total, 1.0, 1e-5);
+  ASSERT_EQ(bin_norm_pb.size(), 2u);
+  EXPECT_NEAR(bin_norm_pb[0], 0.5, 1e-5);  // each non-empty bin: norm 1 / sqrt(2)
+  EXPECT_NEAR(bin_norm_pb[2], 0.5, 1e-5);
+  EXPECT_GT(bin_norm_gl[0], 0.8);  // globally, the crowded bin dominates
+  // Within a bin the proportions are kept: bin 0 holds word w0 twice, word w1 once.
+  double w0 = 0, w1 = 0;
+  for (const auto& e : pb.entries) {
+    if (e.row == w[0]) w0 = e.weight;
+    if (e.row == w[1]) w1 = e.weight;
+  }
+  EXPECT_NEAR(w0 / w1, 2.0, 1e-4);
+  // With one size bin both normalisations are the same.
+  o.num_size_bins = 1;
+  o.size_binning = SizeBinning::kNone;
+  const BowVector one_gl = BowEncoder(*v, o).Encode(f);
+  o.normalization = Normalization::kPerBin;
+  const BowVector one_pb = BowEncoder(*v, o).Encode(f);
+  ASSERT_EQ(one_gl.entries.size(), one_pb.entries.size());
+  for (size_t i = 0; i < one_gl.entries.size(); ++i) EXPECT_FLOAT_EQ(one_gl.entries[i].weight, one_pb.entries[i].weight);
+}
+
 }  // namespace
 }  // namespace gtbow

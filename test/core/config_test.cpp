@@ -23,12 +23,37 @@ TEST(Config, PresetsAreThePapersConfigurations) {
   EXPECT_EQ(hi.bow.orientation_bins, 6);
   EXPECT_TRUE(hi.bow.orientation_verification);
   EXPECT_EQ(hi.bow.soft_assignment, 3);
-  EXPECT_DOUBLE_EQ(hi.bow.sigma, 580.0);
+  // The authors' reading (issue 14): Hamming words, sigma^2 = 580 bits, converged k-means,
+  // one global normalisation; floor-adaptive features.
+  EXPECT_EQ(hi.vocabulary.metric, Metric::kHamming);
+  EXPECT_NEAR(hi.bow.sigma * hi.bow.sigma, 580.0, 0.1);
+  EXPECT_DOUBLE_EQ(hi.vocabulary.kmeans_stop_fraction, 0.01);
+  EXPECT_EQ(hi.bow.normalization, Normalization::kGlobal);
+  EXPECT_EQ(hi.features.contrast, Contrast::kClahe);
+  EXPECT_GT(hi.features.grid_cols, 0);
 
   const RetrievalConfig fast = LoadRetrievalConfig(kDir + "/fast.yaml");
   EXPECT_EQ(fast.bow.soft_assignment, 1);
   EXPECT_EQ(fast.vocabulary.num_words, 100000);
   EXPECT_TRUE(fast.bow.orientation_verification);
+  // Everything but r is the high-accuracy preset.
+  RetrievalConfig fast_as_ha = fast;
+  fast_as_ha.bow.soft_assignment = 3;
+  EXPECT_EQ(RetrievalConfigDifference(fast_as_ha, "fast", hi, "high"), "");
+
+  // The paper read literally: sigma = 580 of an L2 distance over the descriptor bytes, plain ORB.
+  const RetrievalConfig lit = LoadRetrievalConfig(kDir + "/paper_literal.yaml");
+  EXPECT_EQ(lit.vocabulary.metric, Metric::kL2Bytes);
+  EXPECT_DOUBLE_EQ(lit.bow.sigma, 580.0);
+  EXPECT_TRUE(IsPlainExtractor(lit.features));
+  EXPECT_EQ(LoadRetrievalConfig(kDir + "/paper_literal_fast.yaml").bow.soft_assignment, 1);
+
+  // The authors' code: per-bin normalisation and FLANN's clustering tree.
+  const RetrievalConfig au = LoadRetrievalConfig(kDir + "/authors.yaml");
+  EXPECT_EQ(au.bow.normalization, Normalization::kPerBin);
+  EXPECT_EQ(au.vocabulary.ann, AnnIndex::kFlann);
+  EXPECT_EQ(au.vocabulary.checks, 1000);
+  EXPECT_TRUE(IsPlainExtractor(au.features));
 
   const RetrievalConfig dbow = LoadRetrievalConfig(kDir + "/dbow_baseline.yaml");
   EXPECT_EQ(dbow.vocabulary.kind, VocabularyKind::kHkm);
@@ -68,6 +93,59 @@ TEST(Config, ErrorsNameFileLineAndKey) {
   expect("vocabulary:\n  kind: hkm\nbow:\n  soft_assignment: 3\n", "soft_assignment must be 1");
   expect("bow:\n  orientation_bins: 0\n", "orientation_bins");
   expect("bow: [1, 2\n", "invalid YAML");
+  expect("bow:\n  normalization: per_word\n", "unknown normalization 'per_word'");
+  expect("features:\n  contrast: hdr\n", "unknown contrast 'hdr'");
+  expect("features:\n  grid_cols: 4\n", "grid_cols and grid_rows");
+  expect("features:\n  type: sift\n  contrast: clahe\nvocabulary:\n  metric: l2\nbow:\n  size_binning: percentile\n",
+         "for ORB only");
+  expect("vocabulary:\n  kmeans_stop_fraction: 1.5\n", "kmeans_stop_fraction");
+}
+
+TEST(Config, EveryKeyRoundTripsAndDifferencesNameTheKey) {
+  RetrievalConfig c;
+  c.features.contrast = Contrast::kNormalize;
+  c.features.orb_fast_threshold = 12;
+  c.features.orb_min_fast_threshold = 5;
+  c.features.grid_cols = 5;
+  c.features.grid_rows = 4;
+  c.vocabulary.kmeans_stop_fraction = 0.02;
+  c.vocabulary.train_nprobe = 40;
+  c.bow.normalization = Normalization::kPerBin;
+  const RetrievalConfig back = ParseRetrievalConfig(FormatRetrievalConfig(c), "x.yaml");
+  EXPECT_EQ(FormatRetrievalConfig(back), FormatRetrievalConfig(c));
+  EXPECT_EQ(RetrievalConfigDifference(back, "a", c, "b"), "");
+  RetrievalConfig d = c;
+  d.features.orb_fast_threshold = 20;
+  d.bow.normalization = Normalization::kGlobal;
+  EXPECT_EQ(RetrievalConfigDifference(c, "the map", d, "this node"),
+            "features.orb_fast_threshold: 12 (the map), 20 (this node); "
+            "bow.normalization: per_bin (the map), global (this node)");
+}
+
+TEST(Config, AVocabularyTrainedWithAnotherExtractorIsRefused) {
+  cv::Mat words(8, 32, CV_8U);
+  cv::randu(words, 0, 256);
+  VocabularyOptions vo;
+  vo.metric = Metric::kHamming;
+  vo.num_words = 8;
+  vo.kmeans_iterations = 1;
+  auto v = TrainVocabulary(vo, words, {0, 1, 2, 3, 4, 5, 6, 7}, false);
+  FeatureOptions adaptive;
+  adaptive.contrast = Contrast::kClahe;
+  // No record (a vocabulary from before format 3): only the plain extractor may use it.
+  EXPECT_NO_THROW(CheckVocabularyExtractor(*v, "old.gtvoc", FeatureOptions{}));
+  EXPECT_THROW(CheckVocabularyExtractor(*v, "old.gtvoc", adaptive), std::invalid_argument);
+  v->set_extractor(FormatFeatureOptions(adaptive));
+  EXPECT_NO_THROW(CheckVocabularyExtractor(*v, "v.gtvoc", adaptive));
+  try {
+    CheckVocabularyExtractor(*v, "v.gtvoc", FeatureOptions{});
+    ADD_FAILURE() << "a vocabulary of another extractor was accepted";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("v.gtvoc"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("features.contrast: clahe (the vocabulary), none (the preset)"),
+              std::string::npos)
+        << e.what();
+  }
 }
 
 }  // namespace

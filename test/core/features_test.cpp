@@ -1,6 +1,7 @@
 #include "ground_texture_bow/core/features.h"
 
 #include <cmath>
+#include <cstdio>
 
 #include <gtest/gtest.h>
 #include <opencv2/imgproc.hpp>
@@ -79,6 +80,107 @@ TEST(Features, SiftAndBadInput) {
   bad.orb_scale_factor = 1.0f;
   EXPECT_THROW(FeatureExtractor{bad}, std::invalid_argument);
   EXPECT_THROW(ParseFeatureType("surf"), std::invalid_argument);
+}
+
+// A faint floor: the asphalt texture squeezed to a tenth of its contrast around mid grey, with
+// sensor noise (what a smooth concrete floor gives a camera).
+cv::Mat Faint(const cv::Mat& img, double scale = 0.1) {
+  cv::Mat f, noise(img.size(), CV_32F);
+  img.convertTo(f, CV_32F);
+  cv::randn(noise, 0, 1.0);
+  cv::Mat out;
+  cv::Mat(128 + scale * (f - cv::mean(f)[0]) + noise).convertTo(out, CV_8U);
+  return out;
+}
+
+TEST(Features, ContrastNormalisationStretchesOnlyFaintFloors) {
+  FeatureOptions o;
+  o.contrast = Contrast::kNormalize;
+  const FeatureExtractor fx(o);
+  const cv::Mat rough = Asphalt();
+  // A rough floor is left as it is (gain 1): exactly the paper's ORB.
+  EXPECT_EQ(cv::norm(fx.Preprocess(rough), rough, cv::NORM_INF), 0.0);
+  const ImageFeatures plain = FeatureExtractor(FeatureOptions{}).Extract(rough), same = fx.Extract(rough);
+  ASSERT_EQ(plain.size(), same.size());
+  EXPECT_EQ(cv::norm(plain.descriptors, same.descriptors, cv::NORM_HAMMING), 0.0);
+  // A faint one is stretched, and yields many more keypoints than plain ORB on it.
+  const cv::Mat faint = Faint(rough);
+  const cv::Mat stretched = fx.Preprocess(faint);
+  cv::Scalar m0, s0, m1, s1;
+  cv::meanStdDev(faint, m0, s0);
+  cv::meanStdDev(stretched, m1, s1);
+  EXPECT_GT(s1[0], 2.5 * s0[0]);
+  EXPECT_NEAR(m1[0], 128, 3);
+  const size_t n_plain = FeatureExtractor(FeatureOptions{}).Extract(faint).size();
+  const size_t n_norm = fx.Extract(faint).size();
+  std::printf("faint floor: plain ORB %zu keypoints, contrast-normalised %zu\n", n_plain, n_norm);
+  EXPECT_GT(n_norm, 2 * n_plain + 50);
+  // CLAHE equalises every image.
+  o.contrast = Contrast::kClahe;
+  EXPECT_GT(cv::norm(FeatureExtractor(o).Preprocess(rough), rough, cv::NORM_L1), 0.0);
+  EXPECT_GT(FeatureExtractor(o).Extract(faint).size(), 2 * n_plain + 50);
+}
+
+TEST(Features, ClaheAndAGridSpreadKeypointsOverFaintParts) {
+  // Texture in the left quarter, a faint floor elsewhere: plain ORB crowds into the texture;
+  // CLAHE equalises each tile's contrast and the grid takes each cell's share (the presets).
+  cv::Mat img = Faint(Asphalt(), 0.15);
+  const cv::Mat rough = Asphalt(0.7);
+  rough(cv::Rect(0, 0, 160, 480)).copyTo(img(cv::Rect(0, 0, 160, 480)));
+  auto share_outside = [](const ImageFeatures& f) {
+    size_t n = 0;
+    for (const auto& k : f.keypoints) n += k.x > 200 ? 1 : 0;
+    return static_cast<double>(n) / std::max<size_t>(1, f.size());
+  };
+  const ImageFeatures plain = FeatureExtractor(FeatureOptions{}).Extract(img);
+  FeatureOptions g;
+  g.contrast = Contrast::kClahe;
+  g.grid_cols = 4;
+  g.grid_rows = 3;
+  const ImageFeatures grid = FeatureExtractor(g).Extract(img);
+  FeatureOptions c = g;
+  c.grid_cols = c.grid_rows = 0;
+  const ImageFeatures clahe = FeatureExtractor(c).Extract(img);
+  std::printf("keypoints outside the textured quarter: plain %.0f%% of %zu, clahe %.0f%% of %zu, clahe + grid "
+              "%.0f%% of %zu\n",
+              100 * share_outside(plain), plain.size(), 100 * share_outside(clahe), clahe.size(),
+              100 * share_outside(grid), grid.size());
+  EXPECT_LT(share_outside(plain), 0.1);
+  EXPECT_GT(share_outside(grid), 0.6);  // 9 of the 12 cells lie outside
+  EXPECT_GT(share_outside(grid), share_outside(clahe));
+  EXPECT_EQ(grid.size(), 250u);
+  EXPECT_EQ(grid.descriptors.rows, 250);
+  // Deterministic.
+  const ImageFeatures again = FeatureExtractor(g).Extract(img);
+  EXPECT_EQ(cv::norm(grid.descriptors, again.descriptors, cv::NORM_HAMMING), 0.0);
+}
+
+TEST(Features, AnAdaptiveThresholdFindsKeypointsOnAFaintFloor) {
+  const cv::Mat faint = Faint(Asphalt(), 0.2);
+  const size_t fixed = FeatureExtractor(FeatureOptions{}).Extract(faint).size();
+  FeatureOptions a;
+  a.orb_min_fast_threshold = 5;
+  const ImageFeatures adaptive = FeatureExtractor(a).Extract(faint);
+  std::printf("faint floor: FAST threshold 20: %zu keypoints, adaptive (down to 5): %zu\n", fixed,
+              adaptive.size());
+  EXPECT_GT(adaptive.size(), 2 * fixed + 50);
+  EXPECT_EQ(adaptive.descriptors.rows, static_cast<int>(adaptive.size()));
+  // A rough floor reaches num_features at the first threshold: the same keypoints as plain ORB.
+  const cv::Mat rough = Asphalt();
+  const ImageFeatures plain = FeatureExtractor(FeatureOptions{}).Extract(rough), same = FeatureExtractor(a).Extract(rough);
+  ASSERT_EQ(plain.size(), same.size());
+  size_t common = 0;
+  for (const auto& k : plain.keypoints) {
+    for (const auto& m : same.keypoints) common += (k.x == m.x && k.y == m.y && k.octave == m.octave) ? 1 : 0;
+  }
+  EXPECT_GT(common, plain.size() * 9 / 10);
+  // Adaptation is for ORB; a grid needs both sizes.
+  FeatureOptions sift = a;
+  sift.type = FeatureType::kSift;
+  EXPECT_THROW(FeatureExtractor{sift}, std::invalid_argument);
+  FeatureOptions half;
+  half.grid_cols = 4;
+  EXPECT_THROW(FeatureExtractor{half}, std::invalid_argument);
 }
 
 }  // namespace

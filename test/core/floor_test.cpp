@@ -348,6 +348,84 @@ TEST(Floor, RejectsBadInput) {
   EXPECT_EQ(ParseSurface(SurfaceName(Surface::kLaminate)), Surface::kLaminate);
 }
 
+TEST(Floor, LowContrastSurfacesHaveFineFaintStructure) {
+  const Camera cam(Ideal());
+  cv::Scalar m, asphalt_sd;
+  cv::meanStdDev(cam.Capture(Floor(Surface::kAsphalt, 4), {1.0, 2.0, 0.2}, {}, {}, 1), m, asphalt_sd);
+  for (Surface s : {Surface::kSmoothConcrete, Surface::kEpoxy}) {
+    const Floor floor(s, 4);
+    const cv::Mat a = cam.Capture(floor, {1.0, 2.0, 0.2}, {}, {}, 1);
+    cv::Scalar mean, sd;
+    cv::meanStdDev(a, mean, sd);
+    std::printf("%s: grey-level sd %.1f (asphalt %.1f)\n", SurfaceName(s).c_str(), sd[0], asphalt_sd[0]);
+    // Faint: a few grey levels (real smooth concrete photos: 7 to 13), far below asphalt.
+    EXPECT_GT(sd[0], 1.5) << SurfaceName(s);
+    EXPECT_LT(sd[0], 12.0) << SurfaceName(s);
+    EXPECT_LT(sd[0], 0.5 * asphalt_sd[0]) << SurfaceName(s);
+    // Fine: detail at the pixel scale, fixed to the floor, different at another place.
+    cv::Mat f, blur;
+    a.convertTo(f, CV_32F);
+    cv::GaussianBlur(f, blur, cv::Size(), 2.0);
+    cv::meanStdDev(f - blur, mean, sd);
+    EXPECT_GT(sd[0], 0.3) << SurfaceName(s);
+    cv::Mat x, y;
+    a.convertTo(x, CV_32F, 1.0 / 255);
+    cam.Capture(floor, {1.7, 2.4, 0.2}, {}, {}, 1).convertTo(y, CV_32F, 1.0 / 255);
+    const cv::Mat all(x.size(), CV_8U, cv::Scalar(255));
+    EXPECT_LT(std::abs(Ncc(x, y, all)), 0.3) << SurfaceName(s);
+  }
+  EXPECT_EQ(ParseSurface("smooth_concrete"), Surface::kSmoothConcrete);
+  EXPECT_EQ(ParseSurface("epoxy"), Surface::kEpoxy);
+}
+
+TEST(Floor, APhotoFloorShowsThePhotoWherePosesSay) {
+  // A "photo": an ideal rendering of asphalt, 400 x 300 px at 0.5 mm per pixel.
+  CameraOptions po = Ideal();
+  po.width = 400;
+  po.height = 300;
+  po.meters_per_pixel = 0.0005;
+  const cv::Mat photo = Camera(po).Capture(Floor(Surface::kAsphalt, 9), {5.0, 5.0, 0.0}, {}, {}, 1);
+  PhotoRegion r;
+  r.path = "photo.png";
+  r.meters_per_pixel = 0.0005;
+  r.x0 = 2.0;
+  r.y0 = 1.0;
+  photo.convertTo(r.reflectance, CV_32F, 1.0 / 255);
+  const Floor floor({r}, 1);
+  CameraOptions co = Ideal();
+  co.width = 160;
+  co.height = 120;
+  co.meters_per_pixel = 0.0005;
+  co.supersample = 1;
+  const Camera cam(co);
+  // Upright, image pixel centres on photo pixel centres: the crop of the photo.
+  const Pose2D upright{2.0 + 0.0005 * 220, 1.0 + 0.0005 * 140, 0.0};
+  const cv::Mat img = cam.Capture(floor, upright, {}, {}, 1);
+  cv::Mat a, b;
+  img.convertTo(a, CV_32F);
+  photo(cv::Rect(220 - 80, 140 - 60, 160, 120)).convertTo(b, CV_32F);
+  const cv::Mat all(a.size(), CV_8U, cv::Scalar(255));
+  const double ncc = Ncc(a, b, all);
+  std::printf("photo floor, upright view against the photo crop: NCC %.3f\n", ncc);
+  EXPECT_GT(ncc, 0.9);
+  // Turned by 90 degrees about the same centre: the crop turned.
+  const cv::Mat turned = cam.Capture(floor, {upright.x, upright.y, M_PI / 2}, {}, {}, 1);
+  cv::Mat crop, rot;
+  photo(cv::Rect(220 - 60, 140 - 80, 120, 160)).copyTo(crop);
+  cv::rotate(crop, rot, cv::ROTATE_90_COUNTERCLOCKWISE);
+  rot.convertTo(b, CV_32F);
+  turned.convertTo(a, CV_32F);
+  const double ncc_turned = Ncc(a, b, all);
+  cv::rotate(crop, rot, cv::ROTATE_90_CLOCKWISE);
+  rot.convertTo(b, CV_32F);
+  EXPECT_GT(ncc_turned, 0.85);
+  EXPECT_LT(std::abs(Ncc(a, b, all)), 0.3);  // the other sense of rotation does not match
+  // Bad photo floors and photos.
+  EXPECT_THROW(Floor(Surface::kPhoto, 1), std::invalid_argument);
+  EXPECT_THROW(Floor(std::vector<PhotoRegion>{}, 1), std::invalid_argument);
+  EXPECT_THROW(ParseSurface("photo"), std::invalid_argument);
+}
+
 }  // namespace
 }  // namespace synth
 }  // namespace gtbow

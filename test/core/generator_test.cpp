@@ -4,10 +4,12 @@
 
 #include <filesystem>
 #include <fstream>
+#include <map>
 #include <set>
 #include <stdexcept>
 
 #include <gtest/gtest.h>
+#include <opencv2/imgcodecs.hpp>
 
 #include "test_util.h"
 
@@ -185,6 +187,115 @@ TEST(Generator, CheckNamesTheBadField) {
   o = {};
   o.train_images = -1;
   expect_field(o, "train_images");
+}
+
+// Writes an image of `w` x `h` pixels (rendered floor texture) as a photo file.
+fs::path WritePhoto(const fs::path& dir, const std::string& name, int w, int h, uint64_t seed) {
+  CameraOptions o;
+  o.sensor_effects = false;
+  o.width = w;
+  o.height = h;
+  o.meters_per_pixel = 0.0005;
+  const cv::Mat img = Camera(o).Capture(Floor(Surface::kConcrete, seed), {3.0, 3.0, 0.0}, {}, {}, 1);
+  const fs::path p = dir / name;
+  cv::imwrite(p.string(), img);
+  return p;
+}
+
+class PhotoFloor : public testing_util::TempDirTest {
+ protected:
+  SynthOptions Options() {
+    SynthOptions o = Small();
+    o.photos = {WritePhoto(dir_, "big.png", 600, 420, 1), WritePhoto(dir_, "small floor.jpg", 300, 260, 2)};
+    o.train_photos = {WritePhoto(dir_, "other.png", 400, 300, 3)};
+    o.camera.width = 160;
+    o.camera.height = 120;
+    o.camera.meters_per_pixel = 0.0005;
+    o.queries_per_split = 12;
+    return o;
+  }
+};
+
+TEST_F(PhotoFloor, NoImageCrossesItsPhotosEdgeAndQueriesAreSplitPerPhoto) {
+  const SynthOptions o = Options();
+  const auto regions = LoadPhotoFloor(o);
+  ASSERT_EQ(regions.size(), 3u);
+  EXPECT_EQ(regions[1].label, "small_floor");
+  const DatasetPlan plan = PlanPhotoDataset(o, regions);
+  const ImageGeometry g = o.camera.Geometry();
+  std::map<std::string, int> per_region_db;
+  for (const auto& im : plan.images) {
+    const auto fp = Footprint(im.pose, g);
+    int inside = -1;
+    for (size_t r = 0; r < regions.size(); ++r) {
+      bool all = true;
+      for (const auto& c : fp) {
+        // With the 2% scale jitter of the camera, corners stay inside the photo.
+        const double cx = im.pose.x + 1.02 * (c.x - im.pose.x), cy = im.pose.y + 1.02 * (c.y - im.pose.y);
+        all = all && cx >= regions[r].x0 && cx <= regions[r].x0 + regions[r].width() && cy >= regions[r].y0 &&
+              cy <= regions[r].y0 + regions[r].height();
+      }
+      if (all) inside = static_cast<int>(r);
+    }
+    ASSERT_GE(inside, 0) << im.name << " crosses a photo's edge";
+    if (im.split == "train") EXPECT_EQ(inside, 2) << im.name;
+    if (im.split != "train") EXPECT_LT(inside, 2) << im.name;
+    if (im.split == "database") ++per_region_db[regions[inside].label];
+    if (im.split.rfind("query_", 0) == 0) {
+      EXPECT_NE(im.split.find(regions[inside].label), std::string::npos) << im.split;
+    }
+  }
+  EXPECT_GE(per_region_db["big"], 6);
+  EXPECT_GE(per_region_db["small_floor"], 2);
+  EXPECT_EQ(plan.splits.at("query_day000_big").size(), 12u);
+  EXPECT_EQ(plan.splits.at("query_day060_small_floor").size(), 12u);
+  EXPECT_EQ(plan.info.query_days.at("query_day060_big"), 60);
+  // Random headings, and the same plan for the same seed.
+  const DatasetPlan again = PlanPhotoDataset(o, regions);
+  ASSERT_EQ(again.images.size(), plan.images.size());
+  std::set<int> headings;
+  for (size_t i = 0; i < plan.images.size(); ++i) {
+    EXPECT_EQ(again.images[i].pose.x, plan.images[i].pose.x);
+    EXPECT_EQ(again.images[i].pose.theta, plan.images[i].pose.theta);
+    if (plan.images[i].split.rfind("query_", 0) == 0) {
+      headings.insert(static_cast<int>(std::floor((plan.images[i].pose.theta + M_PI) / (M_PI / 2))));
+    }
+  }
+  EXPECT_GE(headings.size(), 4u);
+}
+
+TEST_F(PhotoFloor, WritesADatasetAndBadPhotosAreNamed) {
+  SynthOptions o = Options();
+  o.queries_per_split = 3;
+  o.train_images = 4;
+  const fs::path out = dir_ / "ds";
+  const SynthSummary s = GenerateDataset(o, out, false, false);
+  EXPECT_EQ(s.split_sizes.at("query_day000_big"), 3u);
+  const Dataset ds = Dataset::Load(out);
+  EXPECT_EQ(ds.info().surface, "photo: big, small_floor");
+  const std::string prov = ReadFile(out / "synth.yaml");
+  EXPECT_NE(prov.find("file: \"small floor.jpg\", use: map"), std::string::npos) << prov;
+  auto expect_error = [&](SynthOptions bad, const std::string& part) {
+    try {
+      PlanDataset(bad);
+      ADD_FAILURE() << "accepted: " << part;
+    } catch (const std::invalid_argument& e) {
+      EXPECT_NE(std::string(e.what()).find(part), std::string::npos) << e.what();
+    }
+  };
+  SynthOptions tiny = Options();
+  tiny.photos.push_back(WritePhoto(dir_, "tiny.png", 150, 100, 4));
+  expect_error(tiny, "tiny.png: the photo is 150 x 100 px");
+  SynthOptions text = Options();
+  WriteFileAtomic(dir_ / "notes.png", "not an image");
+  text.photos.push_back(dir_ / "notes.png");
+  expect_error(text, "notes.png: not an image, or a format that cannot be decoded");
+  SynthOptions missing = Options();
+  missing.photos.push_back(dir_ / "gone.png");
+  expect_error(missing, "gone.png: no such file");
+  SynthOptions no_train = Options();
+  no_train.train_photos.clear();
+  expect_error(no_train, "train split needs training photos");
 }
 
 }  // namespace

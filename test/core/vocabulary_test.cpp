@@ -142,6 +142,71 @@ TEST(Vocabulary, IvfSearchAgreesWithExactNearestWord) {
   for (size_t i = 0; i < again.size(); ++i) ASSERT_EQ(again[i].word, approx[i].word);
 }
 
+TEST(Vocabulary, HammingIvfIsExactWithEveryListAndTravelsWithTheFile) {
+  const Planted train = MakeBinary(300, 10, 30, 9);
+  VocabularyOptions o;
+  o.metric = Metric::kHamming;
+  o.num_words = 300;
+  o.kmeans_iterations = 4;
+  o.ann = AnnIndex::kIvf;
+  auto v = TrainVocabulary(o, train.data, train.image, false);
+  const Planted query = MakeBinary(300, 2, 30, 9);
+  std::vector<WordHit> exact, approx;
+  v->AssignExact(query.data, &exact);
+  v->set_search(AnnIndex::kIvf, 1000);  // every list
+  v->Assign(query.data, 3, &approx);
+  for (size_t i = 0; i < exact.size(); ++i) {
+    ASSERT_FLOAT_EQ(approx[3 * i].distance, exact[i].distance) << i;  // the nearest word's distance
+    EXPECT_LE(approx[3 * i].distance, approx[3 * i + 1].distance);
+  }
+  v->set_search(AnnIndex::kIvf, 6);
+  v->Assign(query.data, 3, &approx);
+  const fs::path f = fs::temp_directory_path() / ("gtbow_bivf_" + std::to_string(::getpid()) + ".gtvoc");
+  v->set_extractor("features:\n  type: orb\n");
+  v->Save(f);
+  auto back = Vocabulary::Load(f);
+  fs::remove(f);
+  EXPECT_EQ(back->extractor(), "features:\n  type: orb\n");
+  back->set_search(AnnIndex::kIvf, 6);
+  std::vector<WordHit> again;
+  back->Assign(query.data, 3, &again);
+  ASSERT_EQ(again.size(), approx.size());
+  for (size_t i = 0; i < again.size(); ++i) ASSERT_EQ(again[i].word, approx[i].word);
+}
+
+TEST(Vocabulary, KMeansStopsOnceFewDescriptorsChangeWord) {
+  // Stopping at "fewer than 99.9% changed, after 2 iterations" gives exactly the vocabulary of
+  // 3 iterations; a full run to convergence differs from it and quantises at least as well.
+  const Planted p = MakeBinary(60, 20, 40, 5);
+  VocabularyOptions o;
+  o.metric = Metric::kHamming;
+  o.num_words = 60;
+  o.kmeans_iterations = 200;
+  o.kmeans_stop_fraction = 0.999;
+  o.kmeans_min_iterations = 2;
+  const auto early = TrainVocabulary(o, p.data, p.image, false);
+  VocabularyOptions three = o;
+  three.kmeans_iterations = 3;
+  three.kmeans_stop_fraction = 0.0;
+  const auto fixed = TrainVocabulary(three, p.data, p.image, false);
+  EXPECT_EQ(early->fingerprint(), fixed->fingerprint());
+  VocabularyOptions one = three;
+  one.kmeans_iterations = 1;
+  VocabularyOptions conv = o;
+  conv.kmeans_stop_fraction = 0.01;
+  const auto first = TrainVocabulary(one, p.data, p.image, false);
+  const auto converged = TrainVocabulary(conv, p.data, p.image, false);
+  auto cost = [&](const Vocabulary& v) {
+    std::vector<WordHit> hits;
+    v.AssignExact(p.data, &hits);
+    double c = 0;
+    for (const auto& h : hits) c += h.distance;
+    return c;
+  };
+  EXPECT_NE(converged->fingerprint(), first->fingerprint());
+  EXPECT_LT(cost(*converged), cost(*first));
+}
+
 TEST(Vocabulary, HkmRecoversPlantedClustersAndBuildsATree) {
   VocabularyOptions o;
   o.kind = VocabularyKind::kHkm;

@@ -1,0 +1,34 @@
+#!/usr/bin/env bash
+# make benchmark-real: the presets on datasets cut from real photographs of floors (issue 14).
+# Ten surfaces from ../shared/real_floors (seven textured, three smooth concrete), each photo one
+# bounded region at 0.5 mm per pixel, imaged by a 320 x 240 camera at 0.5 mm per pixel;
+# queries on days 0 and 180 (40 per surface and day) at random poses, with the floor's ageing
+# model; the train split from eight other photos set aside for it. The per-surface tables go
+# into docs/RESULTS.md (section "real").
+# Usage: benchmark_real.sh GTBOW PHOTO_DIR DATA_DIR OUT_DIR
+set -euo pipefail
+export PATH="/usr/bin:$PATH"
+gtbow="$1"; photos="$2"; data="$3"; out="$4"
+here="$(cd "$(dirname "$0")/.." && pwd)"
+cfg="$here/config"
+if [ ! -d "$photos" ]; then
+  echo "benchmark-real: no photo directory $photos (set REAL_FLOORS=DIR)" >&2
+  exit 2
+fi
+map=(ufoai-textures_street001.png ufoai-textures_e8crete03.jpg ufoai-textures_concrete_g_11.jpg
+     nexuiz-textures_gravel01.png nexuiz-textures_mudground04.png supertuxkart-data_Paving_stones_2.jpg
+     lugaru-data_MossRock.jpg
+     ufoai-textures_concrete_g_9.jpg nexuiz-textures_eX_cretebase_02.png nexuiz-textures_eX_cretebase_03_dark.png)
+train=(ufoai-textures_street002.png nexuiz-textures_mudground03.png supertuxkart-data_road2.jpg
+       ufoai-textures_concrete_s_1.jpg redeclipse-data_plaster1.jpg ufoai-textures_concrete003.png
+       redeclipse-data_sand01_c.png redeclipse-data_redrock02.png)
+args=()
+for f in "${map[@]}"; do args+=(--photo "$photos/$f"); done
+for f in "${train[@]}"; do args+=(--train-photo "$photos/$f"); done
+"$gtbow" synth --out "$data" --force "${args[@]}" --width 320 --height 240 --meters-per-pixel 0.0005 \
+  --queries 40 --days 0,180 --train 300 -q
+"$gtbow" eval --dataset "$data" --words 20000 --preset "$cfg/high_accuracy.yaml" --preset "$cfg/fast.yaml" \
+  --preset "$cfg/paper_literal.yaml" --preset "$cfg/paper_literal_fast.yaml" --preset "$cfg/authors.yaml" \
+  --preset "$cfg/ablation/authors/ours_plain_orb.yaml" --preset "$cfg/dbow_baseline.yaml" \
+  --out "$out" --timing-queries 20 --no-plots -q
+/usr/bin/python3 "$here/scripts/write_real_results.py" "$out/results.json" "$here/docs"
