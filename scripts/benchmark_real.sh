@@ -4,7 +4,8 @@
 # bounded region at 0.5 mm per pixel, imaged by a 320 x 240 camera at 0.5 mm per pixel;
 # queries on days 0 and 180 (40 per surface and day) at random poses, with the floor's ageing
 # model; the train split from eight other photos set aside for it. The per-surface tables go
-# into docs/RESULTS.md (section "real").
+# into docs/RESULTS.md (section "real"), with the features ablation (config/ablation/features).
+# Then the low-contrast synthetic surfaces (smooth_concrete, epoxy) with the same presets.
 # Usage: benchmark_real.sh GTBOW PHOTO_DIR DATA_DIR OUT_DIR
 set -euo pipefail
 export PATH="/usr/bin:$PATH"
@@ -30,5 +31,18 @@ for f in "${train[@]}"; do args+=(--train-photo "$photos/$f"); done
 "$gtbow" eval --dataset "$data" --words 20000 --preset "$cfg/high_accuracy.yaml" --preset "$cfg/fast.yaml" \
   --preset "$cfg/paper_literal.yaml" --preset "$cfg/paper_literal_fast.yaml" --preset "$cfg/authors.yaml" \
   --preset "$cfg/ablation/authors/ours_plain_orb.yaml" --preset "$cfg/dbow_baseline.yaml" \
+  --preset "$cfg/ablation/features/clahe_only.yaml" --preset "$cfg/ablation/features/grid_only.yaml" \
+  --preset "$cfg/ablation/features/normalize_grid.yaml" --preset "$cfg/ablation/features/adaptive_threshold.yaml" \
+  --preset "$cfg/ablation/features/grid_refill.yaml" --preset "$cfg/ablation/features/dense_400.yaml" \
   --out "$out" --timing-queries 20 --no-plots -q
-/usr/bin/python3 "$here/scripts/write_real_results.py" "$out/results.json" "$here/docs"
+# The low-contrast synthetic surfaces (0.6 x 0.6 m each, 640 x 480 at 0.25 mm per pixel).
+lc=()
+for surface in smooth_concrete epoxy; do
+  "$gtbow" synth --out "$data-$surface" --force --surface "$surface" --area 0.6 0.6 --train 100 \
+    --queries 30 --days 0,180 -q > /dev/null
+  "$gtbow" eval --dataset "$data-$surface" --words 5000 --preset "$cfg/high_accuracy.yaml" \
+    --preset "$cfg/fast.yaml" --preset "$cfg/paper_literal.yaml" --preset "$cfg/authors.yaml" \
+    --out "$out-$surface" --timing-queries 10 --no-plots -q > /dev/null
+  lc+=("$out-$surface/results.json")
+done
+/usr/bin/python3 "$here/scripts/write_real_results.py" "$out/results.json" "$here/docs" "${lc[@]}"

@@ -66,7 +66,8 @@ def main():
     for p in pngs:
         shutil.copyfile(os.path.join(src, p), os.path.join(docs, "results", p))
 
-    lines = ["## Evaluation: %s" % res["dataset"]["path"], ""]
+    # The dataset by its directory name: no path of the machine that ran it.
+    lines = ["## Evaluation: %s" % os.path.basename(os.path.normpath(res["dataset"]["path"])), ""]
     rows = targets(res)
     if rows:
         lines += ["| target | goal | measured | |", "| --- | --- | --- | --- |"]

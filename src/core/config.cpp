@@ -79,6 +79,7 @@ std::map<std::string, std::map<std::string, Setter>> Schema(RetrievalConfig* c) 
         {"grid_cols", Set(&f.grid_cols)},
         {"grid_rows", Set(&f.grid_rows)},
         {"grid_oversample", Set(&f.grid_oversample)},
+        {"grid_refill", Set(&f.grid_refill)},
         {"sift_octave_layers", Set(&f.sift_octave_layers)},
         {"sift_contrast_threshold", Set(&f.sift_contrast_threshold)},
         {"sift_edge_threshold", Set(&f.sift_edge_threshold)},
@@ -191,6 +192,7 @@ std::string FormatRetrievalConfig(const RetrievalConfig& c) {
     << "  grid_cols: " << f.grid_cols << "\n"
     << "  grid_rows: " << f.grid_rows << "\n"
     << "  grid_oversample: " << f.grid_oversample << "\n"
+    << "  grid_refill: " << (f.grid_refill ? "true" : "false") << "\n"
     << "  sift_octave_layers: " << f.sift_octave_layers << "\n"
     << "  sift_contrast_threshold: " << f.sift_contrast_threshold << "\n"
     << "  sift_edge_threshold: " << f.sift_edge_threshold << "\n"

@@ -108,6 +108,13 @@ ImageFeatures FeatureExtractor::Extract(const cv::Mat& gray) const {
   std::vector<cv::KeyPoint> kps;
   cv::Mat desc;
   const cv::Mat image = Preprocess(gray);
+  // Grid cell of a point (row-major).
+  const auto CellOf = [this](const cv::Point2f& p, const cv::Size& size) {
+    const int cols = options_.grid_cols, rows = options_.grid_rows;
+    const int cx = std::clamp(static_cast<int>(p.x * cols / size.width), 0, cols - 1);
+    const int cy = std::clamp(static_cast<int>(p.y * rows / size.height), 0, rows - 1);
+    return static_cast<size_t>(cy) * cols + cx;
+  };
   if (!adaptive_) {
     detector_->detectAndCompute(image, cv::noArray(), kps, desc);
   } else {
@@ -123,6 +130,44 @@ ImageFeatures FeatureExtractor::Extract(const cv::Mat& gray) const {
         if (kps.size() >= static_cast<size_t>(options_.num_features)) break;
       }
     }
+    if (options_.grid_cols > 0 && options_.grid_refill) {
+      // Cells with under half their share of candidates (a faint part of an otherwise rough
+      // floor: the global ranking left it none) are searched again on their own, at the lowest
+      // threshold.
+      const int cols = options_.grid_cols, rows = options_.grid_rows;
+      const size_t quota = (options_.num_features + cols * rows - 1) / (cols * rows);
+      std::vector<size_t> count(static_cast<size_t>(cols) * rows, 0);
+      for (const auto& k : kps) ++count[CellOf(k.pt, image.size())];
+      cv::Mat mask(image.size(), CV_8U, cv::Scalar(0));
+      bool short_cells = false;
+      for (int cy = 0; cy < rows; ++cy) {
+        for (int cx = 0; cx < cols; ++cx) {
+          if (2 * count[static_cast<size_t>(cy) * cols + cx] >= quota) continue;  // under half its share
+          short_cells = true;
+          const int x0 = cx * image.cols / cols, x1 = (cx + 1) * image.cols / cols;
+          const int y0 = cy * image.rows / rows, y1 = (cy + 1) * image.rows / rows;
+          mask(cv::Rect(x0, y0, x1 - x0, y1 - y0)).setTo(255);
+        }
+      }
+      if (short_cells) {
+        std::vector<cv::KeyPoint> more;
+        cv::Mat more_desc;
+        const auto& d = detectors_.back();
+        if (!all_desc.empty()) {
+          d->detectAndCompute(image, mask, more, more_desc);
+        } else {
+          d->detect(image, more, mask);
+        }
+        for (size_t i = 0; i < more.size(); ++i) {
+          if (2 * count[CellOf(more[i].pt, image.size())] >= quota) continue;
+          bool dup = false;
+          for (const auto& k : kps) dup = dup || (k.pt == more[i].pt && k.octave == more[i].octave);
+          if (dup) continue;
+          kps.push_back(more[i]);
+          if (!all_desc.empty()) all_desc.push_back(more_desc.row(static_cast<int>(i)));
+        }
+      }
+    }
     const size_t want = static_cast<size_t>(options_.num_features);
     std::vector<size_t> order(kps.size());
     std::iota(order.begin(), order.end(), 0);
@@ -136,9 +181,7 @@ ImageFeatures FeatureExtractor::Extract(const cv::Mat& gray) const {
       std::vector<size_t> per_cell(static_cast<size_t>(cols) * rows, 0);
       std::vector<uint8_t> taken(kps.size(), 0);
       for (size_t i : order) {
-        const int cx = std::clamp(static_cast<int>(kps[i].pt.x * cols / image.cols), 0, cols - 1);
-        const int cy = std::clamp(static_cast<int>(kps[i].pt.y * rows / image.rows), 0, rows - 1);
-        size_t& n = per_cell[static_cast<size_t>(cy) * cols + cx];
+        size_t& n = per_cell[CellOf(kps[i].pt, image.size())];
         if (n < quota && chosen.size() < want) {
           ++n;
           taken[i] = 1;

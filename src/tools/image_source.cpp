@@ -282,7 +282,7 @@ std::unique_ptr<Vocabulary> DatasetVocabulary(const VocabularyRequest& a, const 
   const fs::path cached = a.cache.empty() ? fs::path() : a.cache / name;
   if (!cached.empty() && fs::exists(cached)) {
     try {
-      *desc = "trained on the train split (cached " + cached.string() + ")";
+      *desc = "trained on the train split (cached as " + cached.filename().string() + ")";
       return Vocabulary::Load(cached);
     } catch (const std::exception& e) {
       std::fprintf(stderr, "vocabulary cache: %s; training again\n", e.what());

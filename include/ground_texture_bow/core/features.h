@@ -49,11 +49,16 @@ struct FeatureOptions {
   // again with the threshold halved, down to this (0: the threshold is fixed).
   int orb_min_fast_threshold = 0;
   // Spread keypoints over a grid_cols x grid_rows grid (0: off): candidates are detected
-  // `grid_oversample` times num_features, then taken best-first with at most their share per
-  // cell, the remainder filled best-first.
+  // `grid_oversample` times num_features, then each cell's share (num_features / cells) is
+  // taken best-first, and the remainder filled best-first.
   int grid_cols = 0;
   int grid_rows = 0;
   double grid_oversample = 2.0;
+  // With the grid: cells left with under half their share of candidates (a faint part of an
+  // otherwise rough floor, which the global ranking left none) are searched again on their own
+  // (masked, at the lowest FAST threshold). Off in the presets: it cost accuracy and doubled
+  // extraction time on the real-floor benchmark (docs/RESULTS.md).
+  bool grid_refill = false;
   // SIFT (cv::SIFT).
   int sift_octave_layers = 3;            // layers per octave
   double sift_contrast_threshold = 0.04; // DoG contrast threshold
