@@ -58,7 +58,8 @@ BinaryIvfIndex::BinaryIvfIndex(const cv::Mat& words, uint64_t seed, int threads)
   for (int c = 0; c < nlist; ++c) words.row(order[c]).copyTo(coarse_.row(c));
   std::vector<uint32_t> label(v, 0);
   const int bits = bytes_ * 8;
-  for (int it = 0; it < 10; ++it) {
+  // Each word's nearest centre (ties: the lower index), the centres packed first.
+  auto assign = [&]() {
     coarse_packed_.clear();
     PackBinaryRows(coarse_.ptr<uint8_t>(), nlist, bytes_, &coarse_packed_);
     Chunks(static_cast<size_t>(v), threads, [&](size_t b, size_t e) {
@@ -70,6 +71,9 @@ BinaryIvfIndex::BinaryIvfIndex(const cv::Mat& words, uint64_t seed, int threads)
         label[i] = static_cast<uint32_t>(std::min_element(dist.begin(), dist.end()) - dist.begin());
       }
     });
+  };
+  for (int it = 0; it < 10; ++it) {
+    assign();
     // Bitwise-majority centres; an empty list restarts at a random word.
     std::vector<uint32_t> count(nlist, 0), ones(static_cast<size_t>(nlist) * bits, 0);
     for (int i = 0; i < v; ++i) {
@@ -93,17 +97,7 @@ BinaryIvfIndex::BinaryIvfIndex(const cv::Mat& words, uint64_t seed, int threads)
     }
   }
   // Final lists: each word in the list of its nearest (final) centre.
-  coarse_packed_.clear();
-  PackBinaryRows(coarse_.ptr<uint8_t>(), nlist, bytes_, &coarse_packed_);
-  Chunks(static_cast<size_t>(v), threads, [&](size_t b, size_t e) {
-    std::vector<uint32_t> idx(nlist), dist(nlist);
-    for (size_t i = b; i < e; ++i) {
-      const auto q = PackedQuery(words.ptr<uint8_t>(static_cast<int>(i)), bytes_);
-      HammingBelow(q.data(), coarse_packed_.data(), nlist, chunks_, std::numeric_limits<uint32_t>::max(),
-                   idx.data(), dist.data());
-      label[i] = static_cast<uint32_t>(std::min_element(dist.begin(), dist.end()) - dist.begin());
-    }
-  });
+  assign();
   offsets_.assign(nlist + 1, 0);
   for (uint32_t l : label) ++offsets_[l + 1];
   for (int c = 0; c < nlist; ++c) offsets_[c + 1] += offsets_[c];

@@ -63,6 +63,23 @@ int PortableBelow(const uint64_t* q, const uint64_t* blocks, int n, int chunks, 
 }
 
 #ifdef GTBOW_HAVE_AVX512_POPCNT_KERNEL
+// Appends the rows of block `first` whose distance in `v` is below the threshold `t`.
+__attribute__((target("avx512f,avx512vpopcntdq"), always_inline)) inline void Emit(
+    __m512i v, __m512i t, int first, int n, uint32_t* index, uint32_t* distance, int* m) {
+  unsigned mask = _mm512_cmplt_epu64_mask(v, t);
+  const int valid = n - first;
+  if (valid < 8) mask &= (1u << valid) - 1;  // padding rows of the last block
+  if (mask == 0) return;
+  alignas(64) uint64_t s[8];
+  _mm512_store_si512(s, v);
+  while (mask != 0) {
+    const int j = __builtin_ctz(mask);
+    mask &= mask - 1;
+    index[*m] = static_cast<uint32_t>(first + j);
+    distance[(*m)++] = static_cast<uint32_t>(s[j]);
+  }
+}
+
 // One block of 8 rows per register: per chunk an xor with the broadcast query chunk, a vector
 // popcount and an add; the 8 lanes end up holding the 8 rows' distances.
 __attribute__((target("avx512f,avx512vpopcntdq"))) int Avx512Below(
@@ -72,7 +89,6 @@ __attribute__((target("avx512f,avx512vpopcntdq"))) int Avx512Below(
   const size_t block = static_cast<size_t>(kBinaryBlockRows) * chunks;
   const __m512i t = _mm512_set1_epi64(static_cast<long long>(threshold));
   int m = 0;
-  alignas(64) uint64_t s[8];
   if (chunks == 4) {  // ORB: unrolled
     const __m512i q0 = _mm512_set1_epi64(static_cast<long long>(q[0]));
     const __m512i q1 = _mm512_set1_epi64(static_cast<long long>(q[1]));
@@ -85,18 +101,7 @@ __attribute__((target("avx512f,avx512vpopcntdq"))) int Avx512Below(
       const __m512i a2 = _mm512_popcnt_epi64(_mm512_xor_si512(_mm512_loadu_si512(b + 16), q2));
       const __m512i a3 = _mm512_popcnt_epi64(_mm512_xor_si512(_mm512_loadu_si512(b + 24), q3));
       const __m512i v = _mm512_add_epi64(_mm512_add_epi64(a0, a1), _mm512_add_epi64(a2, a3));
-      const int first = bi * kBinaryBlockRows;
-      unsigned mask = _mm512_cmplt_epu64_mask(v, t);
-      const int valid = n - first;
-      if (valid < 8) mask &= (1u << valid) - 1;  // padding rows of the last block
-      if (mask == 0) continue;
-      _mm512_store_si512(s, v);
-      while (mask != 0) {
-        const int j = __builtin_ctz(mask);
-        mask &= mask - 1;
-        index[m] = static_cast<uint32_t>(first + j);
-        distance[m++] = static_cast<uint32_t>(s[j]);
-      }
+      Emit(v, t, bi * kBinaryBlockRows, n, index, distance, &m);
     }
     return m;
   }
@@ -107,18 +112,7 @@ __attribute__((target("avx512f,avx512vpopcntdq"))) int Avx512Below(
       const __m512i qk = _mm512_set1_epi64(static_cast<long long>(q[k]));
       v = _mm512_add_epi64(v, _mm512_popcnt_epi64(_mm512_xor_si512(_mm512_loadu_si512(b + 8 * k), qk)));
     }
-    const int first = bi * kBinaryBlockRows;
-    unsigned mask = _mm512_cmplt_epu64_mask(v, t);
-    const int valid = n - first;
-    if (valid < 8) mask &= (1u << valid) - 1;
-    if (mask == 0) continue;
-    _mm512_store_si512(s, v);
-    while (mask != 0) {
-      const int j = __builtin_ctz(mask);
-      mask &= mask - 1;
-      index[m] = static_cast<uint32_t>(first + j);
-      distance[m++] = static_cast<uint32_t>(s[j]);
-    }
+    Emit(v, t, bi * kBinaryBlockRows, n, index, distance, &m);
   }
   return m;
 }
