@@ -98,7 +98,6 @@ class FeatureExtractor {
 
   // Extracts features from an 8-bit grayscale image. Throws std::invalid_argument for an empty
   // or non-8-bit-gray image. A featureless image gives an empty result, not an error.
-  // Thread-safe: concurrent calls on one extractor are allowed.
   ImageFeatures Extract(const cv::Mat& gray) const;
 
   const FeatureOptions& options() const { return options_; }
