@@ -107,26 +107,31 @@ BinaryIvfIndex::BinaryIvfIndex(const cv::Mat& words, uint64_t seed, int threads)
   Pack(words);
 }
 
+void ReadIvfLists(BinaryReader* r, int32_t nlist, int words, const std::string& what,
+                  std::vector<uint32_t>* offsets, std::vector<uint32_t>* ids) {
+  *offsets = r->GetVector<uint32_t>(static_cast<uint64_t>(nlist) + 1);
+  *ids = r->GetVector<uint32_t>(static_cast<uint64_t>(words));
+  if (offsets->size() != static_cast<size_t>(nlist) + 1 || ids->size() != static_cast<size_t>(words) ||
+      offsets->front() != 0 || offsets->back() != static_cast<uint32_t>(words)) {
+    r->Fail("invalid " + what + " lists");
+  }
+  for (int c = 0; c < nlist; ++c) {
+    if ((*offsets)[c] > (*offsets)[c + 1]) r->Fail("invalid " + what + " lists");
+  }
+  std::vector<uint8_t> seen(words, 0);
+  for (uint32_t id : *ids) {
+    if (id >= static_cast<uint32_t>(words) || seen[id]++) r->Fail("invalid " + what + " word id");
+  }
+}
+
 BinaryIvfIndex::BinaryIvfIndex(const cv::Mat& words, BinaryReader* r)
     : bytes_(words.cols), chunks_(words.cols / 8) {
   if (words.type() != CV_8U || words.cols % 8 != 0) r->Fail("binary IVF lists for words that are not binary");
   const int32_t nlist = r->Get<int32_t>();
   if (nlist < 1 || nlist > words.rows) r->Fail("invalid binary IVF header");
   auto coarse = r->GetVector<uint8_t>(static_cast<uint64_t>(nlist) * bytes_);
-  offsets_ = r->GetVector<uint32_t>(static_cast<uint64_t>(nlist) + 1);
-  ids_ = r->GetVector<uint32_t>(static_cast<uint64_t>(words.rows));
-  if (coarse.size() != static_cast<size_t>(nlist) * bytes_ || offsets_.size() != static_cast<size_t>(nlist) + 1 ||
-      ids_.size() != static_cast<size_t>(words.rows) || offsets_.front() != 0 ||
-      offsets_.back() != static_cast<uint32_t>(words.rows)) {
-    r->Fail("invalid binary IVF lists");
-  }
-  for (int c = 0; c < nlist; ++c) {
-    if (offsets_[c] > offsets_[c + 1]) r->Fail("invalid binary IVF lists");
-  }
-  std::vector<uint8_t> seen(words.rows, 0);
-  for (uint32_t id : ids_) {
-    if (id >= static_cast<uint32_t>(words.rows) || seen[id]++) r->Fail("invalid binary IVF word id");
-  }
+  if (coarse.size() != static_cast<size_t>(nlist) * bytes_) r->Fail("invalid binary IVF centres");
+  ReadIvfLists(r, nlist, words.rows, "binary IVF", &offsets_, &ids_);
   coarse_ = cv::Mat(nlist, bytes_, CV_8U, coarse.data()).clone();
   PackBinaryRows(coarse_.ptr<uint8_t>(), nlist, bytes_, &coarse_packed_);
   Pack(words);

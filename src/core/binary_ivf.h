@@ -6,6 +6,7 @@
 #pragma once
 
 #include <cstdint>
+#include <string>
 #include <vector>
 
 #include <opencv2/core.hpp>
@@ -16,6 +17,12 @@ namespace gtbow {
 
 class BinaryReader;
 class BinaryWriter;
+
+// Reads the lists of an inverted file over `words` words in `nlist` lists, as both IVF indexes
+// save them (offsets, then word ids), and checks them: offsets from 0 to `words`, not
+// decreasing, every word id in range and listed once. Fails through `r` naming `what`.
+void ReadIvfLists(BinaryReader* r, int32_t nlist, int words, const std::string& what,
+                  std::vector<uint32_t>* offsets, std::vector<uint32_t>* ids);
 
 class BinaryIvfIndex {
  public:

@@ -189,19 +189,8 @@ class IvfIndex {
     const int32_t nlist = r->Get<int32_t>();
     if (nlist < 1 || nlist > words.rows) r->Fail("invalid IVF header");
     auto coarse = r->GetVector<float>(static_cast<uint64_t>(nlist) * d_);
-    offsets_ = r->GetVector<uint32_t>(static_cast<uint64_t>(nlist) + 1);
-    ids_ = r->GetVector<uint32_t>(static_cast<uint64_t>(words.rows));
-    if (coarse.size() != static_cast<size_t>(nlist) * d_ || offsets_.size() != static_cast<size_t>(nlist) + 1 ||
-        ids_.size() != static_cast<size_t>(words.rows) || offsets_.front() != 0 ||
-        offsets_.back() != static_cast<uint32_t>(words.rows)) {
-      r->Fail("invalid IVF lists");
-    }
-    for (int c = 0; c < nlist; ++c) {
-      if (offsets_[c] > offsets_[c + 1]) r->Fail("invalid IVF lists");
-    }
-    for (uint32_t id : ids_) {
-      if (id >= static_cast<uint32_t>(words.rows)) r->Fail("invalid IVF word id");
-    }
+    if (coarse.size() != static_cast<size_t>(nlist) * d_) r->Fail("invalid IVF centres");
+    ReadIvfLists(r, nlist, words.rows, "IVF", &offsets_, &ids_);
     coarse_ = cv::Mat(nlist, d_, CV_32F, coarse.data()).clone();
     vectors_.create(words.rows, d_, CV_32F);
     for (int i = 0; i < words.rows; ++i) words.row(static_cast<int>(ids_[i])).copyTo(vectors_.row(i));
