@@ -1,6 +1,7 @@
 #include "ground_texture_bow/core/file_util.h"
 
 #include <fcntl.h>
+#include <pthread.h>
 #include <signal.h>
 #include <sys/mman.h>
 #include <sys/stat.h>
@@ -44,11 +45,17 @@ void WriteFileAtomic(const fs::path& path, std::initializer_list<std::string_vie
 
 namespace {
 
-// Temporaries are named .<file>.tmp-<pid>-<random>. A writer killed before it could clean up
-// (SIGKILL, power loss) leaves one behind; the next writer of the same file removes those of
-// processes that no longer exist. Never throws.
+// Temporaries are named .<file>.tmp-<pid>-<random>, with <file> cut to its first 200 bytes so
+// that the name stays under NAME_MAX (255) for any file name that is itself valid. A writer
+// killed before it could clean up (SIGKILL, power loss) leaves one behind; the next writer of
+// the same file removes those of processes that no longer exist. Never throws.
+std::string TemporaryPrefix(const std::string& file) {
+  constexpr size_t kMaxKept = 200;  // + ".tmp-" + pid (<= 10) + "-" + 16 hex digits < 255
+  return "." + file.substr(0, kMaxKept) + ".tmp-";
+}
+
 void RemoveStaleTemporaries(const fs::path& dir, const std::string& file) noexcept {
-  const std::string prefix = "." + file + ".tmp-";
+  const std::string prefix = TemporaryPrefix(file);
   std::error_code ec;
   for (fs::directory_iterator it(dir, ec), end; !ec && it != end; it.increment(ec)) {
     const std::string name = it->path().filename().string();
@@ -68,7 +75,7 @@ void RemoveStaleTemporaries(const fs::path& dir, const std::string& file) noexce
 AtomicFileWriter::AtomicFileWriter(fs::path path) : path_(std::move(path)) {
   const fs::path dir = path_.has_parent_path() ? path_.parent_path() : fs::path(".");
   RemoveStaleTemporaries(dir, path_.filename().string());
-  tmp_ = dir / ("." + path_.filename().string() + ".tmp-" + std::to_string(::getpid()) + "-" +
+  tmp_ = dir / (TemporaryPrefix(path_.filename().string()) + std::to_string(::getpid()) + "-" +
                 RandomSuffix());
   fd_ = ::open(tmp_.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0644);
   if (fd_ < 0) throw std::runtime_error("cannot write '" + path_.string() + "': " + Errno());
@@ -93,10 +100,25 @@ void AtomicFileWriter::Write(const void* data, size_t size) {
   const char* p = static_cast<const char*>(data);
   size_t done = 0;
   while (done < size) {
+    // A file-size limit (ulimit -f, systemd's LimitFSIZE) makes write() raise SIGXFSZ, whose
+    // default action kills the whole process: a nodelet manager with every nodelet in it, for
+    // one oversized map. Blocked in this thread for the call, write() fails with EFBIG instead,
+    // the signal it raised is consumed, and the save fails like on a full disk.
+    sigset_t xfsz, previous;
+    sigemptyset(&xfsz);
+    sigaddset(&xfsz, SIGXFSZ);
+    pthread_sigmask(SIG_BLOCK, &xfsz, &previous);
     const ssize_t n = ::write(fd_, p + done, size - done);
+    const int error = errno;
+    if (n < 0 && error == EFBIG) {
+      const timespec no_wait{0, 0};
+      while (sigtimedwait(&xfsz, nullptr, &no_wait) == SIGXFSZ) {
+      }
+    }
+    pthread_sigmask(SIG_SETMASK, &previous, nullptr);
     if (n < 0) {
-      if (errno == EINTR) continue;
-      Fail(Errno());
+      if (error == EINTR) continue;
+      Fail(std::strerror(error));
     }
     done += static_cast<size_t>(n);
   }

@@ -92,7 +92,7 @@ LocalizerServer::LocalizerServer(ros::NodeHandle nh, ros::NodeHandle pnh,
       options_(options),
       tf_listener_(tf_buffer_),
       it_(nh),
-      updater_(nh, pnh),
+      updater_(nh, pnh, pnh.getNamespace()),  // named after this nodelet, not its manager
       mode_(options.mode) {
   options_.Check();
   std::string vocab_path = options_.vocabulary;
@@ -382,6 +382,7 @@ void LocalizerServer::PublishDebugImage(const cv::Mat& floor_image, const gtbow:
   cv::putText(color, caption, cv::Point(8, 24), cv::FONT_HERSHEY_SIMPLEX, 0.7,
               cv::Scalar(0, 255, 255), 2, cv::LINE_AA);
   debug_pub_.publish(cv_bridge::CvImage(header, "bgr8", color).toImageMsg());
+  debug_images_++;
 }
 
 void LocalizerServer::PublishMarkers(const ros::TimerEvent&) {
@@ -595,6 +596,7 @@ bool LocalizerServer::GetInfo(ground_texture_bow::GetInfo::Request&, ground_text
   res.images_received = received_.load();
   res.images_processed = processed_.load();
   res.images_dropped = dropped_.load();
+  res.debug_images = debug_images_.load();
   res.images_rejected = rejected_.load();
   res.requests_rejected = rejected_requests_.load();
   res.fixes = fixes_.load();

@@ -37,10 +37,34 @@ TEST_F(FileUtil, AtomicWriteCreatesAndReplaces) {
 TEST_F(FileUtil, FailedWriteLeavesOldFileAndNoTemporary) {
   const fs::path f = dir_ / "a.txt";
   WriteFileAtomic(f, "keep me");
-  // A directory in the way of the rename makes the final step fail.
+  const auto mtime = fs::last_write_time(f);
+  // A write over the very same file that fails half-way (a file-size limit: EFBIG, as a full
+  // disk gives ENOSPC): the error names the file and the system's reason, the old contents and
+  // time stamp stay, no temporary is left, and the process survives the SIGXFSZ.
+  {
+    testing_util::FileSizeLimit limit(4096);
+    try {
+      WriteFileAtomic(f, std::string(64 * 1024, 'x'));
+      ADD_FAILURE() << "a write past the file-size limit succeeded";
+    } catch (const std::runtime_error& e) {
+      EXPECT_NE(std::string(e.what()).find(f.string()), std::string::npos) << e.what();
+      EXPECT_NE(std::string(e.what()).find("File too large"), std::string::npos) << e.what();
+    }
+  }
+  EXPECT_EQ(ReadFile(f), "keep me");
+  EXPECT_EQ(fs::last_write_time(f), mtime);
+  EXPECT_TRUE(testing_util::Temporaries(dir_).empty());
+  // A failure at the last step (the rename: a directory is in the way) removes the complete
+  // temporary and leaves what is at the path, here a directory with its contents.
   const fs::path blocked = dir_ / "blocked";
   fs::create_directories(blocked / "child");
-  EXPECT_THROW(WriteFileAtomic(blocked, "x"), std::runtime_error);
+  try {
+    WriteFileAtomic(blocked, "x");
+    ADD_FAILURE() << "a file replaced a directory";
+  } catch (const std::runtime_error& e) {
+    EXPECT_NE(std::string(e.what()).find("Is a directory"), std::string::npos) << e.what();
+  }
+  EXPECT_TRUE(fs::is_directory(blocked / "child"));
   EXPECT_EQ(ReadFile(f), "keep me");
   EXPECT_EQ(Entries(dir_), 2u);
   // A parent that is a file cannot be written into.
@@ -49,7 +73,17 @@ TEST_F(FileUtil, FailedWriteLeavesOldFileAndNoTemporary) {
     FAIL();
   } catch (const std::runtime_error& e) {
     EXPECT_NE(std::string(e.what()).find("sub.txt"), std::string::npos);
+    EXPECT_NE(std::string(e.what()).find("Not a directory"), std::string::npos) << e.what();
   }
+}
+
+TEST_F(FileUtil, LongestFileNamesAreWrittenToo) {
+  // A file name of 255 bytes (NAME_MAX) is valid; its temporary's name must be too.
+  const fs::path f = dir_ / std::string(255, 'm');
+  WriteFileAtomic(f, "long");
+  WriteFileAtomic(f, "longer");
+  EXPECT_EQ(ReadFile(f), "longer");
+  EXPECT_EQ(Entries(dir_), 1u);
 }
 
 TEST_F(FileUtil, StagedDirectoryReplacesOnlyWhenComplete) {

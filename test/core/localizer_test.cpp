@@ -6,13 +6,16 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <cstring>
 #include <fstream>
+#include <sstream>
 
 #include <gtest/gtest.h>
 #include <opencv2/imgproc.hpp>
 
 #include "ground_texture_bow/core/file_util.h"
 #include "ground_texture_bow/core/synth/generator.h"
+#include "../fuzz/fuzz_util.h"
 #include "test_util.h"
 
 namespace gtbow {
@@ -158,6 +161,47 @@ TEST(Localizer, QueryByKeyframeExcludesItselfAndFindsOverlappingNeighbours) {
   }
 }
 
+// Everything a candidate or a fix carries, at full precision, for comparing answers.
+std::string Describe(const Pose2D& p) {
+  std::ostringstream o;
+  o.precision(17);
+  o << p.x << ' ' << p.y << ' ' << p.theta;
+  return o.str();
+}
+template <size_t N>
+std::string Describe(const std::array<double, N>& a) {
+  std::ostringstream o;
+  o.precision(17);
+  for (double v : a) o << v << ' ';
+  return o.str();
+}
+std::string Describe(const std::vector<Vec2>& points) {
+  std::ostringstream o;
+  o.precision(17);
+  for (const Vec2& v : points) o << v.x << ',' << v.y << ' ';
+  return o.str();
+}
+std::string Describe(const Candidate& c) {
+  std::ostringstream o;
+  o.precision(17);
+  const PoseEstimate& r = c.relative;
+  o << "id " << c.id << " score " << c.score << " stamp " << c.stamp_ns << " has_pose " << c.has_pose
+    << " pose " << Describe(c.map_from_camera) << " verified " << c.verified << " relative "
+    << r.success << " '" << r.reason << "' " << r.database_from_query.theta << ' '
+    << r.database_from_query.t.x << ' ' << r.database_from_query.t.y << ' '
+    << Describe(r.floor_from_query) << " inliers " << r.inliers << " rms " << r.residual_rms
+    << " cov " << Describe(r.covariance) << " inlier pixels " << Describe(c.inliers);
+  return o.str();
+}
+std::string Describe(const PoseFix& f) {
+  std::ostringstream o;
+  o.precision(17);
+  o << "success " << f.success << " '" << f.reason << "' pose " << Describe(f.map_from_camera)
+    << " cov " << Describe(f.covariance) << " keyframe " << f.keyframe << " inliers " << f.inliers
+    << " score " << f.score << " pixels " << Describe(f.inlier_pixels);
+  return o.str();
+}
+
 class LocalizerFiles : public testing_util::TempDirTest {
  protected:
   const std::filesystem::path& dir() const { return dir_; }
@@ -174,17 +218,13 @@ TEST_F(LocalizerFiles, SavedMapsLoadAndAnswerIdentically) {
   ASSERT_EQ(fresh.size(), loc->size());
   for (size_t q = 0; q < s.revisits.size(); ++q) {
     const ProcessedImage img = loc->Process(s.revisits[q]);
+    // Every field of every candidate and of the fix, bit for bit.
     const auto a = loc->Query(img, 5, true), b = fresh.Query(img, 5, true);
     ASSERT_EQ(a.size(), b.size());
-    for (size_t k = 0; k < a.size(); ++k) {
-      EXPECT_EQ(a[k].id, b[k].id);
-      EXPECT_EQ(a[k].score, b[k].score);
-      EXPECT_EQ(a[k].relative.floor_from_query.x, b[k].relative.floor_from_query.x);
-    }
+    ASSERT_FALSE(a.empty());
+    for (size_t k = 0; k < a.size(); ++k) EXPECT_EQ(Describe(a[k]), Describe(b[k])) << q << ' ' << k;
     const PoseFix fa = loc->Localize(img), fb = fresh.Localize(img);
-    EXPECT_EQ(fa.success, fb.success);
-    EXPECT_EQ(fa.map_from_camera.x, fb.map_from_camera.x);
-    EXPECT_EQ(fa.keyframe, fb.keyframe);
+    EXPECT_EQ(Describe(fa), Describe(fb)) << q;
   }
   const auto k7 = fresh.KeyframeInfo(7);
   ASSERT_TRUE(k7.has_value());
@@ -202,27 +242,85 @@ TEST_F(LocalizerFiles, DamagedOrForeignMapsAreRefusedAndTheCurrentMapKept) {
   const std::string good = ReadFile(path);
   Localizer target(s.vocabulary, "test.gtvoc", Options());
   target.Add(target.Process(s.db_images[0]), 1, std::nullopt);
-  auto expect_refused = [&](const std::string& bytes, const std::string& what) {
+  // Each refusal names the file and the defect.
+  auto expect_refused = [&](const std::string& bytes, const std::string& what,
+                            const std::string& defect) {
     WriteFileAtomic(dir() / "bad.gtmap", bytes);
     try {
       target.Load(dir() / "bad.gtmap");
       ADD_FAILURE() << "loaded " << what;
     } catch (const std::runtime_error& e) {
       EXPECT_NE(std::string(e.what()).find("bad.gtmap"), std::string::npos) << e.what();
+      EXPECT_NE(std::string(e.what()).find(defect), std::string::npos) << what << ": " << e.what();
     }
     EXPECT_EQ(target.size(), 1u) << what;  // the current map is kept
   };
   std::string flipped = good;
   flipped[flipped.size() / 2] ^= 0x40;
-  expect_refused(flipped, "a flipped byte");
-  expect_refused(good.substr(0, good.size() / 3), "a truncated file");
-  expect_refused("not a map at all", "a foreign file");
+  expect_refused(flipped, "a flipped byte", "checksum mismatch");
+  expect_refused(good.substr(0, good.size() / 3), "a truncated file", "truncated");
+  expect_refused("not a map at all", "a foreign file", "too short");
+  std::string future = good;
+  future[8] = 99;  // the format version (after the 8-byte magic number)
+  expect_refused(future, "a newer format", "format version 99 is not supported");
   std::string vocab_file;
   {
     s.vocabulary->Save(dir() / "v.gtvoc");
     vocab_file = ReadFile(dir() / "v.gtvoc");
   }
-  expect_refused(vocab_file, "a vocabulary file");
+  expect_refused(vocab_file, "a vocabulary file", "wrong magic number");
+  // Well-formed, checksummed files with a NaN in a keyframe pose or keypoint: the value is
+  // found by its bytes (unique in the file), replaced, and the checksum made right again.
+  auto with_nan = [&](const void* value, size_t size) {
+    const std::string needle(static_cast<const char*>(value), size);
+    const size_t at = good.find(needle);
+    EXPECT_NE(at, std::string::npos);
+    EXPECT_EQ(good.find(needle, at + 1), std::string::npos) << "the value is not unique";
+    std::string bytes = good;
+    if (size == sizeof(double)) {
+      const double nan = std::nan("");
+      std::memcpy(&bytes[at], &nan, sizeof nan);
+    } else {
+      const float nan = std::nanf("");
+      std::memcpy(&bytes[at], &nan, sizeof nan);
+    }
+    return fuzz::RepairFramed(bytes);
+  };
+  // A pose coordinate of some keyframe whose bytes occur once in the file.
+  auto unique_in_file = [&](const void* value, size_t size) {
+    const std::string needle(static_cast<const char*>(value), size);
+    const size_t at = good.find(needle);
+    return at != std::string::npos && good.find(needle, at + 1) == std::string::npos;
+  };
+  int posed = -1;
+  double coordinate = 0;
+  for (size_t i = 0; i < s.db_poses.size() && posed < 0; ++i) {
+    for (const double v : {s.db_poses[i].x, s.db_poses[i].y, s.db_poses[i].theta}) {
+      if (unique_in_file(&v, sizeof v)) {
+        posed = static_cast<int>(i);
+        coordinate = v;
+        break;
+      }
+    }
+  }
+  ASSERT_GE(posed, 0);
+  expect_refused(with_nan(&coordinate, sizeof coordinate), "a NaN pose",
+                 "keyframe " + std::to_string(posed) + " has a non-finite pose");
+  const auto k6 = loc->KeyframeInfo(6);
+  ASSERT_TRUE(k6.has_value());
+  ASSERT_FALSE(k6->keypoints.empty());
+  // The x of a keypoint of keyframe 6 whose bytes occur once in the file.
+  float x6 = 0;
+  bool unique = false;
+  for (const Keypoint& kp : k6->keypoints) {
+    if (unique_in_file(&kp.x, sizeof kp.x)) {
+      x6 = kp.x;
+      unique = true;
+      break;
+    }
+  }
+  ASSERT_TRUE(unique);
+  expect_refused(with_nan(&x6, sizeof x6), "a NaN keypoint", "keyframe 6 has a non-finite keypoint");
   // A map made with another vocabulary (the fuzzers' 64-word fixture) is refused by name.
   {
     LocalizerOptions o = Options();
@@ -249,9 +347,31 @@ TEST_F(LocalizerFiles, DamagedOrForeignMapsAreRefusedAndTheCurrentMapKept) {
   } catch (const std::runtime_error& e) {
     EXPECT_NE(std::string(e.what()).find("preset"), std::string::npos) << e.what();
   }
-  // A save that cannot be written throws and leaves the existing file as it was.
-  EXPECT_THROW(loc->Save(dir() / "no_such_dir" / "map.gtmap"), std::runtime_error);
+  // A save that cannot be written throws, naming the path and the system's reason.
+  try {
+    loc->Save(dir() / "no_such_dir" / "map.gtmap");
+    ADD_FAILURE() << "saved into a directory that does not exist";
+  } catch (const std::runtime_error& e) {
+    EXPECT_NE(std::string(e.what()).find("no_such_dir/map.gtmap"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("No such file or directory"), std::string::npos) << e.what();
+  }
+  // A save over the map itself that fails half-way (a file-size limit below the map's size,
+  // as a full disk would) leaves the file exactly as it was, time stamp included.
+  const auto mtime = std::filesystem::last_write_time(path);
+  loc->Add(loc->Process(s.revisits[0]), 5000, std::nullopt);  // a different, larger map
+  {
+    testing_util::FileSizeLimit limit(good.size() / 2);
+    try {
+      loc->Save(path);
+      ADD_FAILURE() << "a save past the file-size limit succeeded";
+    } catch (const std::runtime_error& e) {
+      EXPECT_NE(std::string(e.what()).find(path.string()), std::string::npos) << e.what();
+      EXPECT_NE(std::string(e.what()).find("File too large"), std::string::npos) << e.what();
+    }
+  }
   EXPECT_EQ(ReadFile(path), good);
+  EXPECT_EQ(std::filesystem::last_write_time(path), mtime);
+  EXPECT_TRUE(testing_util::Temporaries(dir()).empty());
 }
 
 TEST(Localizer, BadImagesAndPosesGetClearErrors) {

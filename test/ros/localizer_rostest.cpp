@@ -8,6 +8,7 @@
 //   services.test      Services.*    external mode, compressed images, the map services
 //   soak.test          Soak.*        `make soak` only: 10 minutes of 4x replay, concurrent calls
 #include <signal.h>
+#include <sys/resource.h>
 
 #include <algorithm>
 #include <atomic>
@@ -28,6 +29,10 @@
 #include <geometry_msgs/PoseStamped.h>
 #include <geometry_msgs/PoseWithCovarianceStamped.h>
 #include <gtest/gtest.h>
+#include <nodelet/NodeletLoad.h>
+#include <nodelet/NodeletUnload.h>
+#include <ros/network.h>
+#include <xmlrpcpp/XmlRpcClient.h>
 #include <ros/ros.h>
 #include <ros/topic.h>
 #include <rosbag/bag.h>
@@ -165,6 +170,48 @@ void Replay(const std::vector<Frame>& frames, const std::string& topic, const st
   ADD_FAILURE() << node << " did not finish processing the replay";
 }
 
+// The process id of a ROS node (the slave API's getPid), or -1.
+pid_t PidOf(const std::string& node) {
+  XmlRpc::XmlRpcValue args, result, payload;
+  args[0] = ros::this_node::getName();
+  args[1] = node;
+  if (!ros::master::execute("lookupNode", args, result, payload, true)) return -1;
+  std::string host;
+  uint32_t port = 0;
+  if (!ros::network::splitURI(static_cast<std::string>(payload), host, port)) return -1;
+  XmlRpc::XmlRpcClient client(host.c_str(), static_cast<int>(port), "/");
+  XmlRpc::XmlRpcValue call, reply;
+  call[0] = ros::this_node::getName();
+  if (!client.execute("getPid", call, reply) || reply.getType() != XmlRpc::XmlRpcValue::TypeArray ||
+      reply.size() < 3) {
+    return -1;
+  }
+  return static_cast<pid_t>(static_cast<int>(reply[2]));
+}
+
+// The latest /diagnostics status of a node, with its values. diagnostic_updater names a status
+// "<node name without the leading slash>: <task>".
+struct NodeStatus {
+  bool seen = false;
+  diagnostic_msgs::DiagnosticStatus status;
+  std::map<std::string, std::string> values;
+};
+NodeStatus LatestStatus(const std::vector<diagnostic_msgs::DiagnosticArray>& arrays,
+                        const std::string& node) {
+  NodeStatus out;
+  for (const auto& array : arrays) {
+    for (const auto& st : array.status) {
+      const std::string prefix = (node.rfind('/', 0) == 0 ? node.substr(1) : node) + ":";
+      if (st.name.rfind(prefix, 0) != 0) continue;
+      out.seen = true;
+      out.status = st;
+      out.values.clear();
+      for (const auto& kv : st.values) out.values[kv.key] = kv.value;
+    }
+  }
+  return out;
+}
+
 double PositionErrorMm(const gtbow::Pose2D& a, const gtbow::Pose2D& b) {
   return 1000.0 * std::hypot(a.x - b.x, a.y - b.y);
 }
@@ -183,18 +230,24 @@ gtbow::Pose2D Compose(const gtbow::Pose2D& keyframe, const geometry_msgs::Pose2D
 
 TEST(Mapping, ReplayBuildsKeyframesAndRevisitsGetTheRightOnes) {
   Collector<ground_texture_bow::LoopClosure> closure_topic("/localizer/loop_closures");
-  // The debug image is computed only with a subscriber: subscribe for the first part.
+  // The debug image is computed only with a subscriber: subscribe for the first part. The
+  // node counts the overlays it draws (get_info: debug_images).
   Collector<sensor_msgs::Image> debug_topic("/localizer/debug_image", 10);
   const auto mapping = ReadBag(g_data + "/mapping.bag");
   ASSERT_GT(mapping.size(), 20u);
   Replay(std::vector<Frame>(mapping.begin(), mapping.begin() + 5), "/camera/image_raw",
          "/localizer", 4.0);
   debug_topic.Stop();
+  ros::WallDuration(1.0).sleep();  // the node sees the subscriber go
+  const uint64_t drawn_while_subscribed = Info("/localizer").debug_images;
   Replay(std::vector<Frame>(mapping.begin() + 5, mapping.end()), "/camera/image_raw",
          "/localizer", 4.0);
   const auto debug = debug_topic.Get();
-  EXPECT_GE(debug.size(), 3u);
-  EXPECT_LE(debug.size(), 6u);
+  EXPECT_GE(drawn_while_subscribed, 4u);  // the first may come before the subscription is up
+  EXPECT_LE(drawn_while_subscribed, 5u);
+  EXPECT_EQ(debug.size(), drawn_while_subscribed);
+  EXPECT_EQ(Info("/localizer").debug_images, drawn_while_subscribed)
+      << "overlays were drawn for " << mapping.size() - 5 << " images without a subscriber";
   if (!debug.empty()) {
     EXPECT_EQ(debug[0].width, mapping[0].image->width);
     EXPECT_EQ(debug[0].encoding, "bgr8");
@@ -300,11 +353,16 @@ TEST(SaveLoad, AFreshNodeLoadsTheMapAnswersAlikeAndLocalizesALaterDay) {
     q.request.verify = true;
     const auto a = Call("/mapper/query_candidates", q).response;
     const auto b = Call("/localizer/query_candidates", q).response;
+    ASSERT_EQ(a.status.code, Status::OK) << a.status.message;
+    ASSERT_EQ(b.status.code, Status::OK) << b.status.message;
     ASSERT_EQ(a.candidates.size(), b.candidates.size());
+    ASSERT_FALSE(a.candidates.empty());
+    // Every field of every candidate: id, stamp, score, pose, verification, relative pose,
+    // inliers, covariance, reason.
     for (size_t k = 0; k < a.candidates.size(); ++k) {
-      EXPECT_EQ(a.candidates[k].id, b.candidates[k].id);
-      EXPECT_EQ(a.candidates[k].score, b.candidates[k].score);
-      EXPECT_EQ(a.candidates[k].match_from_query.x, b.candidates[k].match_from_query.x);
+      EXPECT_TRUE(a.candidates[k] == b.candidates[k]) << "mapper:\n"
+                                                      << a.candidates[k] << "localizer:\n"
+                                                      << b.candidates[k];
     }
   }
 
@@ -401,8 +459,26 @@ TEST(SaveLoad, AFreshNodeLoadsTheMapAnswersAlikeAndLocalizesALaterDay) {
 
 TEST(BadInput, EachKindIsCountedReportedAndLosesNothing) {
   Collector<diagnostic_msgs::DiagnosticArray> diagnostics("/diagnostics");
-  // A nodelet that cannot start (no such vocabulary) in the same manager stays inert and does
-  // not take the manager, or this nodelet, down.
+  // Waits up to 10 s for a node's /diagnostics status that satisfies `pred`.
+  auto wait_status = [&](const std::string& node, auto pred) {
+    const ros::WallTime end = ros::WallTime::now() + ros::WallDuration(10);
+    NodeStatus st;
+    while (ros::WallTime::now() < end) {
+      st = LatestStatus(diagnostics.Get(), node);
+      if (st.seen && pred(st)) break;
+      ros::WallDuration(0.2).sleep();
+    }
+    return st;
+  };
+  // A nodelet that cannot start (no such vocabulary) in the same manager stays inert, says why
+  // on /diagnostics, and does not take the manager, or this nodelet, down.
+  {
+    const NodeStatus broken = wait_status("/broken", [](const NodeStatus&) { return true; });
+    ASSERT_TRUE(broken.seen) << "the nodelet that cannot start reports nothing on /diagnostics";
+    EXPECT_EQ(broken.status.level, diagnostic_msgs::DiagnosticStatus::ERROR);
+    EXPECT_NE(broken.status.message.find("no_such_vocabulary.gtvoc"), std::string::npos)
+        << broken.status.message;
+  }
   EXPECT_FALSE(ros::service::waitForService("/broken/get_info", ros::Duration(1.0)));
   EXPECT_EQ(Info("/localizer").mode, "mapping");
   // A small map to protect.
@@ -418,6 +494,34 @@ TEST(BadInput, EachKindIsCountedReportedAndLosesNothing) {
   save.request.path = good_path;
   ASSERT_EQ(Call("/localizer/save_map", save).response.status.code, Status::OK);
   const std::string good_bytes = gtbow::ReadFile(good_path);
+
+  // A nodelet started in the same manager with this map and another vocabulary (trained for
+  // the same preset): it refuses the map, stays inert, reports the mismatch at ERROR, and the
+  // manager and the running nodelet carry on.
+  {
+    ros::NodeHandle nh;
+    nh.setParam("/mismatched/vocabulary", g_data + "/other_vocab.gtvoc");
+    nh.setParam("/mismatched/map", good_path);
+    nh.setParam("/mismatched/meters_per_pixel", 0.00025);
+    nodelet::NodeletLoad load;
+    load.request.name = "/mismatched";
+    load.request.type = "ground_texture_bow/LocalizerNodelet";
+    load = Call("/localizer_manager/load_nodelet", load);
+    EXPECT_TRUE(load.response.success);
+    const NodeStatus st = wait_status("/mismatched", [](const NodeStatus&) { return true; });
+    ASSERT_TRUE(st.seen) << "the nodelet with the mismatched map reports nothing on /diagnostics";
+    EXPECT_EQ(st.status.level, diagnostic_msgs::DiagnosticStatus::ERROR);
+    EXPECT_NE(st.status.message.find("the map was built with another vocabulary than " + g_data +
+                                     "/other_vocab.gtvoc"),
+              std::string::npos)
+        << st.status.message;
+    EXPECT_NE(st.status.message.find(good_path), std::string::npos) << st.status.message;
+    EXPECT_FALSE(ros::service::waitForService("/mismatched/get_info", ros::Duration(1.0)));
+    nodelet::NodeletUnload unload;
+    unload.request.name = "/mismatched";
+    EXPECT_TRUE(Call("/localizer_manager/unload_nodelet", unload).response.success);
+    EXPECT_EQ(Info("/localizer").database_size, keyframes);
+  }
 
   // Bad images on the topic, 1 s apart (the 20-megapixel one last: it takes a while).
   // Rejected: a wrong encoding, an empty image, a 1x1 image. Processed without a pose (a
@@ -493,8 +597,36 @@ TEST(BadInput, EachKindIsCountedReportedAndLosesNothing) {
   unwritable.request.path = "/proc/gtbow_no_such_dir/map.gtmap";
   unwritable = Call("/localizer/save_map", unwritable);
   EXPECT_EQ(unwritable.response.status.code, Status::INVALID_ARGUMENT);
-  EXPECT_NE(unwritable.response.status.message.find("/proc/gtbow_no_such_dir"), std::string::npos)
+  EXPECT_NE(unwritable.response.status.message.find("/proc/gtbow_no_such_dir/map.gtmap': No such "
+                                                    "file or directory"),
+            std::string::npos)
       << unwritable.response.status.message;
+  // A save over the saved map that fails half-way: the manager process may write files of at
+  // most 4 KB for the call (its RLIMIT_FSIZE, set from here; the map is far larger), as on a
+  // full disk. The error names the path and the reason, the file on disk is the old one, no
+  // temporary is left, and the manager survives the SIGXFSZ that the kernel raises.
+  {
+    const pid_t manager = PidOf("/localizer_manager");
+    ASSERT_GT(manager, 0) << "no pid for /localizer_manager";
+    const auto mtime = fs::last_write_time(good_path);
+    rlimit previous{};
+    ASSERT_EQ(::prlimit(manager, RLIMIT_FSIZE, nullptr, &previous), 0);
+    const rlimit small{4096, previous.rlim_max};
+    ASSERT_EQ(::prlimit(manager, RLIMIT_FSIZE, &small, nullptr), 0);
+    ground_texture_bow::SaveMap over;
+    over.request.path = good_path;
+    over = Call("/localizer/save_map", over);
+    EXPECT_EQ(::prlimit(manager, RLIMIT_FSIZE, &previous, nullptr), 0);
+    EXPECT_EQ(over.response.status.code, Status::INVALID_ARGUMENT) << over.response.status.message;
+    EXPECT_NE(over.response.status.message.find(good_path + "': File too large"), std::string::npos)
+        << over.response.status.message;
+    EXPECT_EQ(gtbow::ReadFile(good_path), good_bytes);
+    EXPECT_EQ(fs::last_write_time(good_path), mtime);
+    std::vector<std::string> entries;
+    for (const auto& e : fs::directory_iterator(dir)) entries.push_back(e.path().filename().string());
+    EXPECT_EQ(entries, std::vector<std::string>{"map.gtmap"});
+    EXPECT_EQ(::kill(manager, 0), 0) << "the manager died";
+  }
   std::string corrupt = good_bytes;
   corrupt[corrupt.size() / 2] ^= 0x10;
   // A corrupt, a truncated and a foreign map file (the vocabulary): refused by name.
@@ -522,34 +654,21 @@ TEST(BadInput, EachKindIsCountedReportedAndLosesNothing) {
   info = Info("/localizer");
   EXPECT_EQ(info.database_size, keyframes_now);
   EXPECT_EQ(info.images_rejected, 3u);
-  EXPECT_EQ(info.requests_rejected, 6u);  // NaN pose, save, three loads, query
+  EXPECT_EQ(info.requests_rejected, 7u);  // NaN pose, two saves, three loads, query
   EXPECT_EQ(gtbow::ReadFile(good_path), good_bytes);
-  const ros::WallTime end = ros::WallTime::now() + ros::WallDuration(5);
-  // The localizer's latest diagnostic status, its values by key.
-  auto latest = [&](diagnostic_msgs::DiagnosticStatus* status) {
-    std::map<std::string, std::string> values;
-    for (const auto& array : diagnostics.Get()) {
-      for (const auto& st : array.status) {
-        if (st.name.find("localizer") == std::string::npos) continue;
-        *status = st;
-        values.clear();
-        for (const auto& kv : st.values) values[kv.key] = kv.value;
-      }
-    }
-    return values;
-  };
-  diagnostic_msgs::DiagnosticStatus status;
-  std::map<std::string, std::string> values;
-  bool seen = false;
-  while (!seen && ros::WallTime::now() < end) {
-    ros::WallDuration(0.2).sleep();
-    values = latest(&status);
-    const std::string& missing = values["missing transforms"];
-    seen = !missing.empty() && std::stoi(missing) >= 4 && values["rejected images"] == "3" &&
-           values["rejected requests"] == "6";
-  }
+  const NodeStatus latest = wait_status("/localizer", [](const NodeStatus& st) {
+    const auto missing = st.values.find("missing transforms");
+    return missing != st.values.end() && !missing->second.empty() &&
+           std::stoi(missing->second) >= 4 && st.values.at("rejected images") == "3" &&
+           st.values.at("rejected requests") == "7";
+  });
+  const bool seen = latest.seen && latest.values.count("missing transforms") &&
+                    std::stoi(latest.values.at("missing transforms")) >= 4 &&
+                    latest.values.at("rejected images") == "3" &&
+                    latest.values.at("rejected requests") == "7";
   EXPECT_TRUE(seen) << "diagnostics do not report the rejected images and requests and the "
                        "missing transforms (no transform, stale, NaN, stale)";
+  const diagnostic_msgs::DiagnosticStatus& status = latest.status;
   EXPECT_EQ(status.level, diagnostic_msgs::DiagnosticStatus::WARN);
   fs::remove_all(dir);
 }
@@ -624,6 +743,7 @@ TEST(Services, ExternalModeCompressedImagesAndMapServices) {
   // loaded machine roscpp's own subscriber queue may drop some before the node sees them.)
   const uint64_t received_before = info.images_received;
   const uint64_t processed_before = info.images_processed;
+  const uint64_t dropped_before = info.images_dropped;
   for (int k = 0; k < 10; ++k) pub.publish(Compress(*mapping[k].image));
   const ros::WallTime burst_end = ros::WallTime::now() + ros::WallDuration(10);
   uint64_t last_received = 0;
@@ -638,6 +758,14 @@ TEST(Services, ExternalModeCompressedImagesAndMapServices) {
   EXPECT_GT(info.images_received, received_before);
   EXPECT_LE(info.images_received, received_before + 10);
   EXPECT_LT(info.images_processed - processed_before, 10u);  // no backlog was worked through
+  std::printf("burst of 10 images: %lu received, %lu processed, %lu dropped\n",
+              static_cast<unsigned long>(info.images_received - received_before),
+              static_cast<unsigned long>(info.images_processed - processed_before),
+              static_cast<unsigned long>(info.images_dropped - dropped_before));
+  EXPECT_GE(info.images_received - received_before, 3u);
+  EXPECT_GT(info.images_dropped, dropped_before) << "no waiting image was replaced";
+  EXPECT_EQ(info.images_received - received_before,
+            (info.images_processed - processed_before) + (info.images_dropped - dropped_before));
   EXPECT_EQ(info.images_processed + info.images_dropped + info.images_rejected, info.images_received);
   EXPECT_EQ(info.database_size, 12u);  // external mode never inserts on its own
 

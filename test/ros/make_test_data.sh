@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Generates the data the rostests replay: a small synthetic asphalt floor, a vocabulary trained
-# on its separate training area, and bags (database with TF: a mapping run; day-30 queries
+# on its separate training area (and a second one), and bags (database with TF: a mapping run; day-30 queries
 # without TF: a robot that must localize globally). Usage: make_test_data.sh GTBOW OUT_DIR
 set -euo pipefail
 GTBOW="$1"
@@ -9,6 +9,10 @@ rm -rf "$OUT.partial"
 mkdir -p "$OUT.partial"
 "$GTBOW" synth --out "$OUT.partial/floor" --area 0.4 0.3 --train 30 --queries 20 --days 0,30 -q
 "$GTBOW" train-vocab --dataset "$OUT.partial/floor" --words 2000 --out "$OUT.partial/vocab.gtvoc" -q
+# Another vocabulary for the same preset (fewer words, another seed): a map made with
+# vocab.gtvoc must be refused by a nodelet that starts with this one.
+"$GTBOW" train-vocab --dataset "$OUT.partial/floor" --words 500 --seed 2 \
+  --out "$OUT.partial/other_vocab.gtvoc" -q
 "$GTBOW" images-to-bag --dataset "$OUT.partial/floor" --split database \
   --out "$OUT.partial/mapping.bag" -q > /dev/null
 "$GTBOW" images-to-bag --dataset "$OUT.partial/floor" --split query_day030 --no-tf \

@@ -158,7 +158,7 @@ class LocalizerServer {
   ros::Timer diag_timer_;
 
   std::atomic<Mode> mode_;
-  std::atomic<uint64_t> received_{0}, processed_{0}, dropped_{0}, rejected_{0},
+  std::atomic<uint64_t> received_{0}, processed_{0}, dropped_{0}, rejected_{0}, debug_images_{0},
       rejected_requests_{0}, missing_tf_{0},
       fixes_{0}, loop_closures_{0}, failed_fixes_{0};
   std::atomic<double> last_processing_ms_{0.0};
