@@ -1,7 +1,8 @@
 # ground_texture_bow: the front door.
 #   make demo   install dependencies, build, and run the main job on the built-in default
 #   make test   install dependencies, build in build/ws, run every gtest and rostest
-#   make test-sanitize  the same with AddressSanitizer + UndefinedBehaviorSanitizer (build/ws-asan)
+#   make test-sanitize  the same with AddressSanitizer + UndefinedBehaviorSanitizer (build/ws-asan),
+#                       then the concurrency tests under ThreadSanitizer (build/ws-tsan)
 #   make fuzz   the libFuzzer targets (clang), FUZZ_SECONDS each (default 600)
 #   make soak   10 minutes of a 4x real-time replay through the nodelet with concurrent services
 #   make benchmark  generate the default 32,000-image benchmark (once), evaluate every Table I
@@ -58,10 +59,14 @@ test: deps ws-src
 
 # Every gtest and rostest again, everything built with ASan + UBSan in its own workspace; any
 # sanitizer report from any process (tests, nodes, the nodelet manager) fails the run.
+# Then the concurrency tests (core, and the nodelet under concurrent service calls for
+# TSAN_SECONDS, default 60) under ThreadSanitizer in build/ws-tsan (scripts/run_tsan.sh).
 ASAN_WS := $(CURDIR)/build/ws-asan
+TSAN_WS := $(CURDIR)/build/ws-tsan
 test-sanitize: deps
 	@bash scripts/link_package.sh "$(CURDIR)" "$(ASAN_WS)/src/ground_texture_bow"
 	@bash scripts/run_tests.sh "$(ASAN_WS)" "$(JOBS)" sanitize
+	@JOBS="$(JOBS)" bash scripts/run_tsan.sh "$(TSAN_WS)" "$(ASAN_WS)/build/ground_texture_bow/rostest_data"
 
 # The file parsers under libFuzzer (test/fuzz): FUZZ_SECONDS per target (default 600), new
 # inputs merged into test/fuzz/corpus.

@@ -20,6 +20,8 @@ PACKAGES=(
   libgtest-dev libgmock-dev python3-matplotlib
   # make fuzz: clang with libFuzzer and the sanitizer runtimes
   clang libclang-rt-14-dev
+  # make test-sanitize: the ASan/UBSan/TSan runtimes, llvm-symbolizer for the TSan reports
+  libasan8 libubsan1 libtsan2 llvm
 )
 
 missing=()

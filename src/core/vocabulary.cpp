@@ -114,7 +114,9 @@ cv::Mat ToSpace(const cv::Mat& desc, Metric metric) {
 // ---------------------------------------------------------------------------------------------
 // IVF: an inverted file over the words (float vectors under L2).
 
-#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+// Not under ThreadSanitizer: the clones' ifunc resolvers run during relocation, before the
+// TSan runtime is up, and crash once instrumented.
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__) && !defined(__SANITIZE_THREAD__)
 #define GTBOW_VOCAB_CLONE __attribute__((target_clones("avx2", "default")))
 #else
 #define GTBOW_VOCAB_CLONE

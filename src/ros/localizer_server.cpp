@@ -185,11 +185,13 @@ void LocalizerServer::Enqueue(Pending p) {
     }
     last_image_time_ = now;
   }
-  {
-    std::lock_guard<std::mutex> lock(slot_mutex_);
-    if (pending_) dropped_++;  // the waiting image is replaced by the newer one
-    pending_ = std::move(p);
-  }
+  // Notified under the lock: once the destructor holds the lock, no callback is still between
+  // the hand-over and the notification (ThreadSanitizer found one signalling the condition
+  // variable as an unloading nodelet destroyed it).
+  std::lock_guard<std::mutex> lock(slot_mutex_);
+  if (stop_) return;
+  if (pending_) dropped_++;  // the waiting image is replaced by the newer one
+  pending_ = std::move(p);
   slot_cv_.notify_one();
 }
 

@@ -7,8 +7,11 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <atomic>
 #include <chrono>
+#include <map>
 #include <random>
+#include <set>
 #include <thread>
 
 #include <gtest/gtest.h>
@@ -212,6 +215,75 @@ TEST_F(CrashSafety, AFullDiskFailsTheSaveNamesThePathAndKeepsTheMap) {
   // With room again, the same save goes through.
   new_map->Save(path);
   EXPECT_EQ(LoadedAnswers(path), Answers(*new_map));
+}
+
+// What the node does at once: its worker inserts keyframes while service threads query by
+// image and by keyframe id and save the map. Every saved file is a consistent snapshot: it
+// loads and answers every probe exactly like a map of the first n keyframes. Queries by
+// keyframe id never see a keyframe half inserted. Run under ThreadSanitizer by make
+// test-sanitize.
+TEST_F(CrashSafety, SavesAndQueriesDuringInsertionSeeConsistentMaps) {
+  const Scene& s = TheScene();
+  Localizer live(s.vocabulary, "tiny.gtvoc", Options());
+  std::vector<ProcessedImage> processed;
+  for (const cv::Mat& img : s.map_images) processed.push_back(live.Process(img));
+  std::vector<ProcessedImage> probes;
+  for (const cv::Mat& img : s.probes) probes.push_back(live.Process(img));
+  constexpr int kKeyframes = 48;
+  std::atomic<bool> stop{false};
+  std::atomic<int> queries{0}, saves{0}, bad_ids{0};
+  std::thread querier([&] {
+    for (size_t k = 0; !stop; ++k) {
+      const size_t n = live.size();
+      for (const Candidate& c : live.Query(probes[k % probes.size()], 5, true)) {
+        bad_ids += c.id >= live.size() ? 1 : 0;
+      }
+      if (n > 0) {
+        const uint32_t id = static_cast<uint32_t>(k % n);
+        for (const Candidate& c : live.QueryKeyframe(id, 3, true)) bad_ids += c.id == id ? 1 : 0;
+      }
+      ++queries;
+    }
+  });
+  std::thread saver([&] {
+    for (int i = 0; !stop; ++i) {
+      live.Save(dir_ / ("snapshot_" + std::to_string(i) + ".gtmap"));
+      ++saves;
+    }
+  });
+  for (int i = 0; i < kKeyframes; ++i) {
+    const int seen = queries.load() + saves.load();
+    live.Add(processed[i % processed.size()], i, Pose2D{0.01 * i, 0.0, 0.0});
+    // Let the other threads make progress between insertions.
+    while (queries.load() + saves.load() < seen + 2) std::this_thread::yield();
+  }
+  stop = true;
+  querier.join();
+  saver.join();
+  EXPECT_EQ(bad_ids.load(), 0);
+  // Each snapshot against a map built sequentially to the same size.
+  std::map<size_t, std::string> prefix_answers;
+  {
+    Localizer seq(s.vocabulary, "tiny.gtvoc", Options());
+    prefix_answers[0] = Answers(seq);
+    for (int i = 0; i < kKeyframes; ++i) {
+      seq.Add(processed[i % processed.size()], i, Pose2D{0.01 * i, 0.0, 0.0});
+      prefix_answers[seq.size()] = Answers(seq);
+    }
+  }
+  std::set<size_t> sizes;
+  int snapshots = 0;
+  for (const auto& e : fs::directory_iterator(dir_)) {
+    if (e.path().extension() != ".gtmap") continue;
+    Localizer loaded(s.vocabulary, "tiny.gtvoc", Options());
+    loaded.Load(e.path());
+    sizes.insert(loaded.size());
+    ++snapshots;
+    EXPECT_EQ(Answers(loaded), prefix_answers.at(loaded.size())) << e.path().filename();
+  }
+  std::printf("%d queries and %d saves during %d insertions; the saves hold %zu different sizes\n",
+              queries.load(), saves.load(), kKeyframes, sizes.size());
+  EXPECT_GE(sizes.size(), 3u) << "the saves did not overlap the insertions";
 }
 
 }  // namespace

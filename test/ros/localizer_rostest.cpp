@@ -907,9 +907,12 @@ class Client {
 
 TEST(Soak, ReplayAtFourTimesRealTimeWithConcurrentServiceCalls) {
   ros::NodeHandle pnh("~");
-  double seconds = 600;
+  double seconds = 600, save_every = 30;
+  bool check_memory = true;  // off under ThreadSanitizer, whose shadow memory swamps the RSS
   std::string out = "/tmp/gtbow_soak";
   pnh.param("seconds", seconds, seconds);
+  pnh.param("save_every", save_every, save_every);
+  pnh.param("check_memory", check_memory, check_memory);
   pnh.param("out", out, out);
   fs::create_directories(out);
   ASSERT_TRUE(ros::service::waitForService("/localizer/get_info", ros::Duration(60)));
@@ -926,7 +929,7 @@ TEST(Soak, ReplayAtFourTimesRealTimeWithConcurrentServiceCalls) {
   by_id.name = "query_candidates (keyframe id)";
   localize.name = "localize";
   info_stats.name = "get_info";
-  save.name = "save_map (every 30 s)";
+  save.name = "save_map (every " + std::to_string(static_cast<int>(save_every)) + " s)";
   auto record = [&](CallStats& st, double start, bool ok, const std::string& why) {
     const double ms = 1000.0 * (wall() - start);
     st.calls++;
@@ -995,7 +998,7 @@ TEST(Soak, ReplayAtFourTimesRealTimeWithConcurrentServiceCalls) {
     }
   });
   callers.emplace_back([&] {
-    double next = wall() + 30;
+    double next = wall() + save_every;
     save.last_done = wall();
     Client<ground_texture_bow::SaveMap> client("/localizer/save_map");
     while (!stop) {
@@ -1004,7 +1007,7 @@ TEST(Soak, ReplayAtFourTimesRealTimeWithConcurrentServiceCalls) {
         save.last_done = wall();  // idle is not hung
         continue;
       }
-      next += 30;
+      next += save_every;
       ground_texture_bow::SaveMap sm;
       sm.request.path = out + "/soak.gtmap";
       const double s0 = wall();
@@ -1069,8 +1072,10 @@ TEST(Soak, ReplayAtFourTimesRealTimeWithConcurrentServiceCalls) {
   double peak = 0;
   for (const Sample& s : samples) peak = std::max(peak, s.rss_mb);
   const double allowed_mb = 2.0 * map_growth_mb + 64.0;
-  EXPECT_LE(rss_growth_mb, allowed_mb) << "memory grew " << rss_growth_mb << " MB while the map grew "
-                                       << map_growth_mb << " MB";
+  if (check_memory) {
+    EXPECT_LE(rss_growth_mb, allowed_mb) << "memory grew " << rss_growth_mb
+                                         << " MB while the map grew " << map_growth_mb << " MB";
+  }
   // Images kept flowing: every minute saw processing.
   for (size_t i = 60; i < samples.size(); i += 60) {
     EXPECT_GT(samples[i].processed, samples[i - 60].processed) << "no image processed in minute " << i / 60;

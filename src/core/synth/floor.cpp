@@ -157,7 +157,9 @@ void ForEachPixel(const View& v, F&& f) {
   }
 }
 
-#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+// Not under ThreadSanitizer: the clones' ifunc resolvers run during relocation, before the
+// TSan runtime is up, and crash once instrumented.
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__) && !defined(__SANITIZE_THREAD__)
 #define GTBOW_AVX2_CLONE __attribute__((target_clones("avx2", "default")))
 #else
 #define GTBOW_AVX2_CLONE
