@@ -23,6 +23,7 @@
 #include <mutex>
 #include <sstream>
 #include <string>
+#include <tuple>
 #include <vector>
 
 #include <diagnostic_msgs/DiagnosticArray.h>
@@ -629,18 +630,21 @@ TEST(BadInput, EachKindIsCountedReportedAndLosesNothing) {
   }
   std::string corrupt = good_bytes;
   corrupt[corrupt.size() / 2] ^= 0x10;
-  // A corrupt, a truncated and a foreign map file (the vocabulary): refused by name.
-  const std::pair<std::string, std::string> bad_maps[] = {
-      {"corrupt.gtmap", corrupt},
-      {"truncated.gtmap", good_bytes.substr(0, good_bytes.size() / 2)},
-      {"foreign.gtmap", gtbow::ReadFile(g_data + "/vocab.gtvoc")}};
-  for (const auto& [name, bytes] : bad_maps) {
+  // A corrupt, a truncated and a foreign map file (the vocabulary): refused, naming the file
+  // and the defect.
+  const std::tuple<std::string, std::string, std::string> bad_maps[] = {
+      {"corrupt.gtmap", corrupt, "checksum mismatch"},
+      {"truncated.gtmap", good_bytes.substr(0, good_bytes.size() / 2), "truncated"},
+      {"foreign.gtmap", gtbow::ReadFile(g_data + "/vocab.gtvoc"), "wrong magic number"}};
+  for (const auto& [name, bytes, defect] : bad_maps) {
     gtbow::WriteFileAtomic(dir / name, bytes);
     ground_texture_bow::LoadMap load;
     load.request.path = (dir / name).string();
     load = Call("/localizer/load_map", load);
     EXPECT_EQ(load.response.status.code, Status::INVALID_ARGUMENT) << name;
     EXPECT_NE(load.response.status.message.find(name), std::string::npos)
+        << load.response.status.message;
+    EXPECT_NE(load.response.status.message.find(defect), std::string::npos)
         << load.response.status.message;
   }
   // A bad image through a service.
