@@ -82,7 +82,7 @@ soak: build
 # training area for the vocabularies (about 15 minutes to render on 2 cores, then about
 # 30 minutes to evaluate).
 # A rendering by an older renderer (synth.yaml's renderer_version) is rendered again.
-RENDERER_VERSION := $(shell grep -oP 'kRendererVersion = \K[0-9]+' include/ground_texture_bow/core/synth/generator.h)
+RENDERER_VERSION := $(shell grep -oP 'kRendererVersion = \K[0-9]+' include/ground_texture_bow/eval/synth/generator.h)
 
 bench-data: build
 	@grep -qx "renderer_version: $(RENDERER_VERSION)" $(BENCH_DATA)/synth.yaml 2>/dev/null || \

@@ -1,5 +1,7 @@
-# Fails when a file under ROOTS includes a ROS header: the core of ground_texture_bow must
-# stay ROS-free. Usage: cmake -DROOTS="dir|dir" -P check_ros_free.cmake
+# Fails when a file under ROOTS includes a ROS header: the engine (src/core), the evaluation kit
+# (src/eval) and the gtbow tool (src/tools) stay ROS-free. With -DENGINE=ON it also fails when a
+# file includes the evaluation kit (ground_texture_bow/eval/): the engine a robot runs does not
+# depend on it. Usage: cmake -DROOTS="dir|dir" [-DENGINE=ON] -P check_ros_free.cmake
 set(ros_prefixes "ros|roscpp|nodelet|pluginlib|image_transport|cv_bridge|tf|tf2|tf2_ros|tf2_geometry_msgs|tf2_msgs|rosbag|rostest|message_filters|diagnostic_updater|dynamic_reconfigure|std_msgs|sensor_msgs|geometry_msgs|nav_msgs|visualization_msgs|actionlib|ground_texture_bow/ros")
 string(REPLACE "|" ";" ROOTS "${ROOTS}")
 set(bad "")
@@ -10,6 +12,12 @@ foreach(root IN LISTS ROOTS)
     if(hits)
       list(APPEND bad "${f}: ${hits}")
     endif()
+    if(ENGINE)
+      file(STRINGS "${f}" hits REGEX "^[ \t]*#[ \t]*include[ \t]*[<\"]ground_texture_bow/eval/")
+      if(hits)
+        list(APPEND bad_kit "${f}: ${hits}")
+      endif()
+    endif()
     # Generated ROS messages of this package (ground_texture_bow/Foo.h with a capital letter).
     file(STRINGS "${f}" hits REGEX "^[ \t]*#[ \t]*include[ \t]*[<\"]ground_texture_bow/[A-Z][A-Za-z0-9]*\\.h")
     if(hits)
@@ -17,7 +25,11 @@ foreach(root IN LISTS ROOTS)
     endif()
   endforeach()
 endforeach()
+if(bad_kit)
+  string(REPLACE ";" "\n  " bad_text "${bad_kit}")
+  message(FATAL_ERROR "the engine (ground_texture_bow_core) must not use the evaluation kit, but these files include it:\n  ${bad_text}")
+endif()
 if(bad)
   string(REPLACE ";" "\n  " bad_text "${bad}")
-  message(FATAL_ERROR "ground_texture_bow_core must stay ROS-free, but these files include ROS headers:\n  ${bad_text}")
+  message(FATAL_ERROR "the engine, the evaluation kit and gtbow stay ROS-free, but these files include ROS headers:\n  ${bad_text}")
 endif()

@@ -2,7 +2,7 @@
 """Scores the localizer's pose fixes against a bag's ground truth.
 
 Reads the ground truth (geometry_msgs/PoseStamped, the camera footprint, written by
-`gtbow images-to-bag`) and the image stamps from BAG, listens to FIX_TOPIC
+`gtbow_images_to_bag`) and the image stamps from BAG, listens to FIX_TOPIC
 (PoseWithCovarianceStamped) until the node has processed every image of the bag (or TIMEOUT
 seconds pass without a new fix), and prints the success rate at the protocol's tolerance
 (4.8 mm, 1.5 degrees). Exit code 0 when at least MIN_RATE of the images were localized.

@@ -23,8 +23,8 @@ echo "== 1. floor"
 "$gtbow" synth --out "$out/floor" --area 0.5 0.4 --train 40 --queries 20 --days 0,180 --force -q
 echo "== 2. vocabulary"
 "$gtbow" train-vocab --dataset "$out/floor" --words 3000 --out "$out/floor.gtvoc" -q
-"$gtbow" images-to-bag --dataset "$out/floor" --split database --out "$out/mapping.bag" -q
-"$gtbow" images-to-bag --dataset "$out/floor" --split query_day180 --no-tf \
+"$ws/devel/bin/gtbow_images_to_bag" --dataset "$out/floor" --split database --out "$out/mapping.bag" -q
+"$ws/devel/bin/gtbow_images_to_bag" --dataset "$out/floor" --split query_day180 --no-tf \
   --out "$out/day180.bag" -q
 
 # A private ROS master, so the demo neither needs nor disturbs a running one.

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # make soak: SOAK_SECONDS (default 600) of the rostests' synthetic mapping bag looped at 4x real
 # time into the nodelet, with concurrent service calls from a second process
-# (test/ros/soak.test, Soak.* in test/ros/localizer_rostest.cpp); then the figures and a plot
+# (test/ros/soak.test, Soak.* in test/ros/soak_rostest.cpp); then the figures and a plot
 # go into docs/RESULTS.md (scripts/write_soak.py). Usage: soak.sh WORKSPACE
 set -euo pipefail
 export PATH="/usr/bin:$PATH"

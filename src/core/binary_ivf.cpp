@@ -9,25 +9,12 @@
 #include <thread>
 
 #include "ground_texture_bow/core/binary_io.h"
+#include "ground_texture_bow/core/parallel.h"
 #include "hamming_distance.h"
 
 namespace gtbow {
 
 namespace {
-
-// Runs f(begin, end) over [0, n) in contiguous chunks on `threads` threads.
-template <typename F>
-void Chunks(size_t n, int threads, F&& f) {
-  threads = std::max(1, std::min<int>(threads, static_cast<int>(n / 256) + 1));
-  std::vector<std::thread> pool;
-  const size_t chunk = (n + threads - 1) / threads;
-  for (int t = 1; t < threads; ++t) {
-    const size_t b = t * chunk, e = std::min(n, b + chunk);
-    if (b < e) pool.emplace_back([&f, b, e]() { f(b, e); });
-  }
-  f(0, std::min(n, chunk));
-  for (auto& th : pool) th.join();
-}
 
 std::vector<uint64_t> PackedQuery(const uint8_t* q, int bytes) {
   std::vector<uint64_t> out(bytes / 8);
@@ -47,7 +34,7 @@ BinaryIvfIndex::BinaryIvfIndex(const cv::Mat& words, uint64_t seed, int threads)
   if (words.type() != CV_8U || words.cols % 8 != 0 || words.rows < 1) {
     throw std::invalid_argument("BinaryIvfIndex: words must be CV_8U rows of a multiple of 8 bytes");
   }
-  if (threads <= 0) threads = static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
+  threads = ThreadCount(threads);
   const int v = words.rows;
   const int nlist = std::max(1, static_cast<int>(std::lround(std::sqrt(static_cast<double>(v)))));
   std::mt19937_64 rng(seed ^ 0xb1f1f);
@@ -62,7 +49,7 @@ BinaryIvfIndex::BinaryIvfIndex(const cv::Mat& words, uint64_t seed, int threads)
   auto assign = [&]() {
     coarse_packed_.clear();
     PackBinaryRows(coarse_.ptr<uint8_t>(), nlist, bytes_, &coarse_packed_);
-    Chunks(static_cast<size_t>(v), threads, [&](size_t b, size_t e) {
+    ParallelParts(static_cast<size_t>(v), threads, 256, [&](size_t b, size_t e, int) {
       std::vector<uint32_t> idx(nlist), dist(nlist);
       for (size_t i = b; i < e; ++i) {
         const auto q = PackedQuery(words.ptr<uint8_t>(static_cast<int>(i)), bytes_);

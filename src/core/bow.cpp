@@ -1,45 +1,32 @@
 #include "ground_texture_bow/core/bow.h"
 
-#include <exception>
-#include <thread>
-
 #include <algorithm>
 #include <cmath>
 #include <stdexcept>
 
+#include "ground_texture_bow/core/enum_names.h"
+#include "ground_texture_bow/core/parallel.h"
+
 namespace gtbow {
 
+namespace {
+constexpr EnumName<SizeBinning> kSizeBinnings[] = {
+    {"none", SizeBinning::kNone}, {"octave", SizeBinning::kOctave}, {"percentile", SizeBinning::kPercentile}};
+constexpr EnumName<Scoring> kScorings[] = {{"dot", Scoring::kDot}, {"dbow_l1", Scoring::kDbowL1}};
+constexpr EnumName<Normalization> kNormalizations[] = {{"global", Normalization::kGlobal},
+                                                       {"per_bin", Normalization::kPerBin}};
+}  // namespace
+
 SizeBinning ParseSizeBinning(const std::string& name) {
-  if (name == "none") return SizeBinning::kNone;
-  if (name == "octave") return SizeBinning::kOctave;
-  if (name == "percentile") return SizeBinning::kPercentile;
-  throw std::invalid_argument("unknown size binning '" + name + "' (valid: none, octave, percentile)");
+  return ParseEnumName(name, "size binning", kSizeBinnings);
 }
-
-std::string SizeBinningName(SizeBinning b) {
-  switch (b) {
-    case SizeBinning::kNone: return "none";
-    case SizeBinning::kOctave: return "octave";
-    case SizeBinning::kPercentile: return "percentile";
-  }
-  return "?";
-}
-
-Scoring ParseScoring(const std::string& name) {
-  if (name == "dot") return Scoring::kDot;
-  if (name == "dbow_l1") return Scoring::kDbowL1;
-  throw std::invalid_argument("unknown scoring '" + name + "' (valid: dot, dbow_l1)");
-}
-
-std::string ScoringName(Scoring s) { return s == Scoring::kDot ? "dot" : "dbow_l1"; }
-
+std::string SizeBinningName(SizeBinning b) { return EnumValueName(b, kSizeBinnings); }
+Scoring ParseScoring(const std::string& name) { return ParseEnumName(name, "scoring", kScorings); }
+std::string ScoringName(Scoring s) { return EnumValueName(s, kScorings); }
 Normalization ParseNormalization(const std::string& name) {
-  if (name == "global") return Normalization::kGlobal;
-  if (name == "per_bin") return Normalization::kPerBin;
-  throw std::invalid_argument("unknown normalization '" + name + "' (valid: global, per_bin)");
+  return ParseEnumName(name, "normalization", kNormalizations);
 }
-
-std::string NormalizationName(Normalization n) { return n == Normalization::kGlobal ? "global" : "per_bin"; }
+std::string NormalizationName(Normalization n) { return EnumValueName(n, kNormalizations); }
 
 void BowOptions::Check() const {
   auto need = [](bool ok, const char* what) {
@@ -113,22 +100,10 @@ BowVector BowEncoder::Encode(const ImageFeatures& f) const {
   } else {
     // Descriptor assignment split over threads: each assigns a contiguous range of rows.
     std::vector<std::vector<WordHit>> part(parts);
-    std::vector<std::thread> pool;
-    std::vector<std::exception_ptr> errors(parts);
-    auto run = [&](int t) {
-      try {
-        const int b = static_cast<int>(f.size() * t / parts), e = static_cast<int>(f.size() * (t + 1) / parts);
-        vocabulary_.Assign(f.descriptors.rowRange(b, e), r, &part[t]);
-      } catch (...) {
-        errors[t] = std::current_exception();
-      }
-    };
-    for (int t = 1; t < parts; ++t) pool.emplace_back(run, t);
-    run(0);
-    for (auto& th : pool) th.join();
-    for (auto& e : errors) {
-      if (e) std::rethrow_exception(e);
-    }
+    RunTasks(parts, [&](int t) {
+      const int b = static_cast<int>(f.size() * t / parts), e = static_cast<int>(f.size() * (t + 1) / parts);
+      vocabulary_.Assign(f.descriptors.rowRange(b, e), r, &part[t]);
+    });
     hits.reserve(f.size() * r);
     for (const auto& p : part) hits.insert(hits.end(), p.begin(), p.end());
   }

@@ -38,83 +38,117 @@ void RetrievalConfig::Check() const {
 
 namespace {
 
-using Setter = std::function<void(const YAML::Node&)>;
+// One table for every option: its section and key, how its YAML value is read, and how it is
+// written. Parsing (the schema), FormatRetrievalConfig (the presets' documented form and what a
+// map file records to refuse other options) and RetrievalConfigDifference all come from it.
+struct Field {
+  const char* section;
+  const char* key;
+  std::function<void(RetrievalConfig*, const YAML::Node&)> read;
+  std::function<std::string(const RetrievalConfig&)> write;
+  bool recorded;  // written by FormatRetrievalConfig (threads are not: answers do not depend on them)
+};
 
 template <typename T>
-Setter Set(T* field) {
-  return [field](const YAML::Node& n) { *field = n.as<T>(); };
+std::string Text(const T& v) {
+  std::ostringstream o;
+  o << std::boolalpha << v;
+  return o.str();
 }
 
-template <typename E>
-Setter SetEnum(E* field, E (*parse)(const std::string&)) {
-  return [field, parse](const YAML::Node& n) { *field = parse(n.as<std::string>()); };
+template <typename S, typename T>
+Field Value(const char* section, const char* key, S RetrievalConfig::*part, T S::*field,
+            bool recorded = true) {
+  return {section, key,
+          [part, field](RetrievalConfig* c, const YAML::Node& n) { (c->*part).*field = n.as<T>(); },
+          [part, field](const RetrievalConfig& c) { return Text((c.*part).*field); }, recorded};
 }
 
-Setter SetUint64(uint64_t* field) {
-  return [field](const YAML::Node& n) { *field = n.as<uint64_t>(); };
+template <typename S, typename E>
+Field Enum(const char* section, const char* key, S RetrievalConfig::*part, E S::*field,
+           E (*parse)(const std::string&), std::string (*name)(E)) {
+  return {section, key,
+          [part, field, parse](RetrievalConfig* c, const YAML::Node& n) {
+            (c->*part).*field = parse(n.as<std::string>());
+          },
+          [part, field, name](const RetrievalConfig& c) { return name((c.*part).*field); }, true};
 }
 
-std::map<std::string, std::map<std::string, Setter>> Schema(RetrievalConfig* c) {
-  FeatureOptions& f = c->features;
-  VocabularyOptions& v = c->vocabulary;
-  BowOptions& b = c->bow;
-  return {
-      {"features",
-       {{"type", SetEnum(&f.type, &ParseFeatureType)},
-        {"num_features", Set(&f.num_features)},
-        {"orb_scale_factor", Set(&f.orb_scale_factor)},
-        {"orb_num_levels", Set(&f.orb_num_levels)},
-        {"orb_edge_threshold", Set(&f.orb_edge_threshold)},
-        {"orb_first_level", Set(&f.orb_first_level)},
-        {"orb_wta_k", Set(&f.orb_wta_k)},
-        {"orb_fast_score", Set(&f.orb_fast_score)},
-        {"orb_patch_size", Set(&f.orb_patch_size)},
-        {"orb_fast_threshold", Set(&f.orb_fast_threshold)},
-        {"contrast", SetEnum(&f.contrast, &ParseContrast)},
-        {"contrast_target", Set(&f.contrast_target)},
-        {"contrast_max_gain", Set(&f.contrast_max_gain)},
-        {"clahe_clip", Set(&f.clahe_clip)},
-        {"clahe_tiles", Set(&f.clahe_tiles)},
-        {"orb_min_fast_threshold", Set(&f.orb_min_fast_threshold)},
-        {"grid_cols", Set(&f.grid_cols)},
-        {"grid_rows", Set(&f.grid_rows)},
-        {"grid_oversample", Set(&f.grid_oversample)},
-        {"grid_refill", Set(&f.grid_refill)},
-        {"sift_octave_layers", Set(&f.sift_octave_layers)},
-        {"sift_contrast_threshold", Set(&f.sift_contrast_threshold)},
-        {"sift_edge_threshold", Set(&f.sift_edge_threshold)},
-        {"sift_sigma", Set(&f.sift_sigma)}}},
-      {"vocabulary",
-       {{"kind", SetEnum(&v.kind, &ParseVocabularyKind)},
-        {"metric", SetEnum(&v.metric, &ParseMetric)},
-        {"num_words", Set(&v.num_words)},
-        {"kmeans_iterations", Set(&v.kmeans_iterations)},
-        {"kmeans_stop_fraction", Set(&v.kmeans_stop_fraction)},
-        {"kmeans_min_iterations", Set(&v.kmeans_min_iterations)},
-        {"num_trees", Set(&v.num_trees)},
-        {"checks", Set(&v.checks)},
-        {"train_checks", Set(&v.train_checks)},
-        {"ann", SetEnum(&v.ann, &ParseAnnIndex)},
-        {"nprobe", Set(&v.nprobe)},
-        {"train_nprobe", Set(&v.train_nprobe)},
-        {"hkm_branching", Set(&v.hkm_branching)},
-        {"hkm_depth", Set(&v.hkm_depth)},
-        {"seed", SetUint64(&v.seed)},
-        {"threads", Set(&v.threads)}}},
-      {"bow",
-       {{"size_binning", SetEnum(&b.size_binning, &ParseSizeBinning)},
-        {"num_size_bins", Set(&b.num_size_bins)},
-        {"soft_assignment", Set(&b.soft_assignment)},
-        {"sigma", Set(&b.sigma)},
-        {"normalization", SetEnum(&b.normalization, &ParseNormalization)},
-        {"orientation_verification", Set(&b.orientation_verification)},
-        {"orientation_bins", Set(&b.orientation_bins)},
-        {"scoring", SetEnum(&b.scoring, &ParseScoring)},
-        {"compact_postings", Set(&b.compact_postings)}}},
+const std::vector<Field>& Fields() {
+  using R = RetrievalConfig;
+  using F = FeatureOptions;
+  using V = VocabularyOptions;
+  using B = BowOptions;
+  static const std::vector<Field> fields = {
+      Enum("features", "type", &R::features, &F::type, &ParseFeatureType, &FeatureTypeName),
+      Value("features", "num_features", &R::features, &F::num_features),
+      Value("features", "orb_scale_factor", &R::features, &F::orb_scale_factor),
+      Value("features", "orb_num_levels", &R::features, &F::orb_num_levels),
+      Value("features", "orb_edge_threshold", &R::features, &F::orb_edge_threshold),
+      Value("features", "orb_first_level", &R::features, &F::orb_first_level),
+      Value("features", "orb_wta_k", &R::features, &F::orb_wta_k),
+      Value("features", "orb_fast_score", &R::features, &F::orb_fast_score),
+      Value("features", "orb_patch_size", &R::features, &F::orb_patch_size),
+      Value("features", "orb_fast_threshold", &R::features, &F::orb_fast_threshold),
+      Enum("features", "contrast", &R::features, &F::contrast, &ParseContrast, &ContrastName),
+      Value("features", "contrast_target", &R::features, &F::contrast_target),
+      Value("features", "contrast_max_gain", &R::features, &F::contrast_max_gain),
+      Value("features", "clahe_clip", &R::features, &F::clahe_clip),
+      Value("features", "clahe_tiles", &R::features, &F::clahe_tiles),
+      Value("features", "orb_min_fast_threshold", &R::features, &F::orb_min_fast_threshold),
+      Value("features", "grid_cols", &R::features, &F::grid_cols),
+      Value("features", "grid_rows", &R::features, &F::grid_rows),
+      Value("features", "grid_oversample", &R::features, &F::grid_oversample),
+      Value("features", "grid_refill", &R::features, &F::grid_refill),
+      Value("features", "sift_octave_layers", &R::features, &F::sift_octave_layers),
+      Value("features", "sift_contrast_threshold", &R::features, &F::sift_contrast_threshold),
+      Value("features", "sift_edge_threshold", &R::features, &F::sift_edge_threshold),
+      Value("features", "sift_sigma", &R::features, &F::sift_sigma),
+      Enum("vocabulary", "kind", &R::vocabulary, &V::kind, &ParseVocabularyKind, &VocabularyKindName),
+      Enum("vocabulary", "metric", &R::vocabulary, &V::metric, &ParseMetric, &MetricName),
+      Value("vocabulary", "num_words", &R::vocabulary, &V::num_words),
+      Value("vocabulary", "kmeans_iterations", &R::vocabulary, &V::kmeans_iterations),
+      Value("vocabulary", "kmeans_stop_fraction", &R::vocabulary, &V::kmeans_stop_fraction),
+      Value("vocabulary", "kmeans_min_iterations", &R::vocabulary, &V::kmeans_min_iterations),
+      Value("vocabulary", "num_trees", &R::vocabulary, &V::num_trees),
+      Value("vocabulary", "checks", &R::vocabulary, &V::checks),
+      Value("vocabulary", "train_checks", &R::vocabulary, &V::train_checks),
+      Enum("vocabulary", "ann", &R::vocabulary, &V::ann, &ParseAnnIndex, &AnnIndexName),
+      Value("vocabulary", "nprobe", &R::vocabulary, &V::nprobe),
+      Value("vocabulary", "train_nprobe", &R::vocabulary, &V::train_nprobe),
+      Value("vocabulary", "hkm_branching", &R::vocabulary, &V::hkm_branching),
+      Value("vocabulary", "hkm_depth", &R::vocabulary, &V::hkm_depth),
+      Value("vocabulary", "seed", &R::vocabulary, &V::seed),
+      Value("vocabulary", "threads", &R::vocabulary, &V::threads, false),
+      Enum("bow", "size_binning", &R::bow, &B::size_binning, &ParseSizeBinning, &SizeBinningName),
+      Value("bow", "num_size_bins", &R::bow, &B::num_size_bins),
+      Value("bow", "soft_assignment", &R::bow, &B::soft_assignment),
+      Value("bow", "sigma", &R::bow, &B::sigma),
+      Enum("bow", "normalization", &R::bow, &B::normalization, &ParseNormalization, &NormalizationName),
+      Value("bow", "orientation_verification", &R::bow, &B::orientation_verification),
+      Value("bow", "orientation_bins", &R::bow, &B::orientation_bins),
+      Enum("bow", "scoring", &R::bow, &B::scoring, &ParseScoring, &ScoringName),
+      Value("bow", "compact_postings", &R::bow, &B::compact_postings),
   };
+  return fields;
+}
+
+const Field* FindField(const std::string& section, const std::string& key) {
+  for (const Field& f : Fields()) {
+    if (section == f.section && key == f.key) return &f;
+  }
+  return nullptr;
 }
 
 }  // namespace
+
+std::vector<std::string> RetrievalConfigKeys() {
+  std::vector<std::string> keys;
+  for (const Field& f : Fields()) {
+    if (f.recorded) keys.push_back(std::string(f.section) + "." + f.key);
+  }
+  return keys;
+}
 
 RetrievalConfig ParseRetrievalConfig(const std::string& text, const std::string& source) {
   auto fail = [&](const YAML::Node* n, const std::string& what) {
@@ -133,20 +167,18 @@ RetrievalConfig ParseRetrievalConfig(const std::string& text, const std::string&
   RetrievalConfig c;
   if (root.IsNull()) return c;
   if (!root.IsMap()) fail(&root, "expected sections features, vocabulary and bow");
-  auto schema = Schema(&c);
   for (const auto& section : root) {
     const std::string name = section.first.as<std::string>();
-    const auto it = schema.find(name);
-    if (it == schema.end()) {
+    if (name != "features" && name != "vocabulary" && name != "bow") {
       fail(&section.first, "unknown section '" + name + "' (valid: features, vocabulary, bow)");
     }
     if (!section.second.IsMap()) fail(&section.second, "section '" + name + "' must be a mapping");
     for (const auto& kv : section.second) {
       const std::string key = kv.first.as<std::string>();
-      const auto field = it->second.find(key);
-      if (field == it->second.end()) fail(&kv.first, "unknown key '" + name + "." + key + "'");
+      const Field* field = FindField(name, key);
+      if (field == nullptr) fail(&kv.first, "unknown key '" + name + "." + key + "'");
       try {
-        field->second(kv.second);
+        field->read(&c, kv.second);
       } catch (const YAML::Exception&) {
         fail(&kv.second, "bad value for '" + name + "." + key + "': '" +
                              (kv.second.IsScalar() ? kv.second.Scalar() : std::string("?")) + "'");
@@ -169,84 +201,27 @@ RetrievalConfig LoadRetrievalConfig(const std::filesystem::path& path) {
 
 std::string FormatRetrievalConfig(const RetrievalConfig& c) {
   std::ostringstream s;
-  const FeatureOptions& f = c.features;
-  const VocabularyOptions& v = c.vocabulary;
-  const BowOptions& b = c.bow;
-  s << "features:\n"
-    << "  type: " << FeatureTypeName(f.type) << "\n"
-    << "  num_features: " << f.num_features << "\n"
-    << "  orb_scale_factor: " << f.orb_scale_factor << "\n"
-    << "  orb_num_levels: " << f.orb_num_levels << "\n"
-    << "  orb_edge_threshold: " << f.orb_edge_threshold << "\n"
-    << "  orb_first_level: " << f.orb_first_level << "\n"
-    << "  orb_wta_k: " << f.orb_wta_k << "\n"
-    << "  orb_fast_score: " << (f.orb_fast_score ? "true" : "false") << "\n"
-    << "  orb_patch_size: " << f.orb_patch_size << "\n"
-    << "  orb_fast_threshold: " << f.orb_fast_threshold << "\n"
-    << "  contrast: " << ContrastName(f.contrast) << "\n"
-    << "  contrast_target: " << f.contrast_target << "\n"
-    << "  contrast_max_gain: " << f.contrast_max_gain << "\n"
-    << "  clahe_clip: " << f.clahe_clip << "\n"
-    << "  clahe_tiles: " << f.clahe_tiles << "\n"
-    << "  orb_min_fast_threshold: " << f.orb_min_fast_threshold << "\n"
-    << "  grid_cols: " << f.grid_cols << "\n"
-    << "  grid_rows: " << f.grid_rows << "\n"
-    << "  grid_oversample: " << f.grid_oversample << "\n"
-    << "  grid_refill: " << (f.grid_refill ? "true" : "false") << "\n"
-    << "  sift_octave_layers: " << f.sift_octave_layers << "\n"
-    << "  sift_contrast_threshold: " << f.sift_contrast_threshold << "\n"
-    << "  sift_edge_threshold: " << f.sift_edge_threshold << "\n"
-    << "  sift_sigma: " << f.sift_sigma << "\n"
-    << "vocabulary:\n"
-    << "  kind: " << VocabularyKindName(v.kind) << "\n"
-    << "  metric: " << MetricName(v.metric) << "\n"
-    << "  num_words: " << v.num_words << "\n"
-    << "  kmeans_iterations: " << v.kmeans_iterations << "\n"
-    << "  kmeans_stop_fraction: " << v.kmeans_stop_fraction << "\n"
-    << "  kmeans_min_iterations: " << v.kmeans_min_iterations << "\n"
-    << "  num_trees: " << v.num_trees << "\n"
-    << "  checks: " << v.checks << "\n"
-    << "  train_checks: " << v.train_checks << "\n"
-    << "  ann: " << AnnIndexName(v.ann) << "\n"
-    << "  nprobe: " << v.nprobe << "\n"
-    << "  train_nprobe: " << v.train_nprobe << "\n"
-    << "  hkm_branching: " << v.hkm_branching << "\n"
-    << "  hkm_depth: " << v.hkm_depth << "\n"
-    << "  seed: " << v.seed << "\n"
-    << "bow:\n"
-    << "  size_binning: " << SizeBinningName(b.size_binning) << "\n"
-    << "  num_size_bins: " << b.num_size_bins << "\n"
-    << "  soft_assignment: " << b.soft_assignment << "\n"
-    << "  sigma: " << b.sigma << "\n"
-    << "  normalization: " << NormalizationName(b.normalization) << "\n"
-    << "  orientation_verification: " << (b.orientation_verification ? "true" : "false") << "\n"
-    << "  orientation_bins: " << b.orientation_bins << "\n"
-    << "  scoring: " << ScoringName(b.scoring) << "\n"
-    << "  compact_postings: " << (b.compact_postings ? "true" : "false") << "\n";
+  std::string section;
+  for (const Field& f : Fields()) {
+    if (!f.recorded) continue;
+    if (section != f.section) {
+      section = f.section;
+      s << section << ":\n";
+    }
+    s << "  " << f.key << ": " << f.write(c) << "\n";
+  }
   return s.str();
 }
 
 std::string RetrievalConfigDifference(const RetrievalConfig& a, const std::string& a_name,
                                       const RetrievalConfig& b, const std::string& b_name) {
-  auto lines = [](const std::string& text) {
-    std::vector<std::string> out;
-    std::istringstream in(text);
-    for (std::string line; std::getline(in, line);) out.push_back(line);
-    return out;
-  };
-  const auto la = lines(FormatRetrievalConfig(a)), lb = lines(FormatRetrievalConfig(b));
-  std::string section, diff;
-  for (size_t i = 0; i < la.size() && i < lb.size(); ++i) {
-    if (!la[i].empty() && la[i][0] != ' ') {
-      section = la[i].substr(0, la[i].size() - 1);  // "features:" -> "features"
-      continue;
-    }
-    if (la[i] == lb[i]) continue;
-    const size_t colon = la[i].find(':');
-    const std::string key = la[i].substr(2, colon - 2);
-    const std::string va = la[i].substr(colon + 2), vb = lb[i].substr(lb[i].find(':') + 2);
-    diff += (diff.empty() ? "" : "; ") + section + "." + key + ": " + va + " (" + a_name + "), " + vb +
-            " (" + b_name + ")";
+  std::string diff;
+  for (const Field& f : Fields()) {
+    if (!f.recorded) continue;
+    const std::string va = f.write(a), vb = f.write(b);
+    if (va == vb) continue;
+    diff += (diff.empty() ? "" : "; ") + std::string(f.section) + "." + f.key + ": " + va + " (" +
+            a_name + "), " + vb + " (" + b_name + ")";
   }
   return diff;
 }

@@ -8,31 +8,22 @@
 #include <opencv2/features2d.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "ground_texture_bow/core/enum_names.h"
+
 namespace gtbow {
 
+namespace {
+constexpr EnumName<FeatureType> kFeatureTypes[] = {{"orb", FeatureType::kOrb}, {"sift", FeatureType::kSift}};
+constexpr EnumName<Contrast> kContrasts[] = {
+    {"none", Contrast::kNone}, {"normalize", Contrast::kNormalize}, {"clahe", Contrast::kClahe}};
+}  // namespace
+
 FeatureType ParseFeatureType(const std::string& name) {
-  if (name == "orb") return FeatureType::kOrb;
-  if (name == "sift") return FeatureType::kSift;
-  throw std::invalid_argument("unknown feature type '" + name + "' (valid: orb, sift)");
+  return ParseEnumName(name, "feature type", kFeatureTypes);
 }
-
-std::string FeatureTypeName(FeatureType type) { return type == FeatureType::kOrb ? "orb" : "sift"; }
-
-Contrast ParseContrast(const std::string& name) {
-  if (name == "none") return Contrast::kNone;
-  if (name == "normalize") return Contrast::kNormalize;
-  if (name == "clahe") return Contrast::kClahe;
-  throw std::invalid_argument("unknown contrast '" + name + "' (valid: none, normalize, clahe)");
-}
-
-std::string ContrastName(Contrast c) {
-  switch (c) {
-    case Contrast::kNone: return "none";
-    case Contrast::kNormalize: return "normalize";
-    case Contrast::kClahe: return "clahe";
-  }
-  return "?";
-}
+std::string FeatureTypeName(FeatureType type) { return EnumValueName(type, kFeatureTypes); }
+Contrast ParseContrast(const std::string& name) { return ParseEnumName(name, "contrast", kContrasts); }
+std::string ContrastName(Contrast c) { return EnumValueName(c, kContrasts); }
 
 bool IsPlainExtractor(const FeatureOptions& o) {
   return o.contrast == Contrast::kNone && o.orb_min_fast_threshold == 0 && o.grid_cols == 0 &&

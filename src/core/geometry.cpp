@@ -111,6 +111,16 @@ bool IsRelevant(const Pose2D& query, const Pose2D& database, const ImageGeometry
   return Overlap(query, database, g) >= kRelevantOverlap;
 }
 
+Pose2D Compose(const Pose2D& a, const Pose2D& b) {
+  const double c = std::cos(a.theta), s = std::sin(a.theta);
+  return {a.x + c * b.x - s * b.y, a.y + s * b.x + c * b.y, a.theta + b.theta};
+}
+
+Pose2D Inverse(const Pose2D& p) {
+  const double c = std::cos(p.theta), s = std::sin(p.theta);
+  return {-(c * p.x + s * p.y), s * p.x - c * p.y, -p.theta};
+}
+
 double WrapAngle(double angle) {
   angle = std::remainder(angle, 2.0 * M_PI);
   if (angle <= -M_PI) angle += 2.0 * M_PI;

@@ -38,8 +38,9 @@ Localizer::Localizer(std::shared_ptr<Vocabulary> vocabulary, std::string vocabul
   const VocabularyOptions& vo = options_.retrieval.vocabulary;
   if (vo.kind != vocabulary_->kind() || vo.metric != vocabulary_->metric()) {
     throw std::invalid_argument("the preset asks for a " + VocabularyKindName(vo.kind) + "/" +
-                                MetricName(vo.metric) + " vocabulary, " + vocabulary_path_ +
-                                " is " + VocabularyKindName(vocabulary_->kind()) + "/" +
+                                MetricName(vo.metric) + " vocabulary (vocabulary.kind, " +
+                                "vocabulary.metric), " + vocabulary_path_ + " is " +
+                                VocabularyKindName(vocabulary_->kind()) + "/" +
                                 MetricName(vocabulary_->metric()));
   }
   CheckVocabularyExtractor(*vocabulary_, vocabulary_path_, options_.retrieval.features);
@@ -168,54 +169,31 @@ std::vector<Candidate> Localizer::QueryKeyframe(uint32_t id, size_t k, bool veri
   return QueryLocked(bow, f.keypoints, kf.width, kf.height, k, verify, id, id + 1);
 }
 
-PoseFix Localizer::Localize(const ProcessedImage& image) const {
-  PoseFix fix;
+Localization Localizer::Localize(const ProcessedImage& image) const {
+  Localization none;
   if (image.bow.source.empty()) {
-    fix.reason = "the image has no features";
-    return fix;
+    none.reason = "the image has no features";
+    return none;
   }
   std::shared_lock<std::shared_mutex> lock(mutex_);
   if (keyframes_.empty()) {
-    fix.reason = "the map is empty";
-    return fix;
+    none.reason = "the map is empty";
+    return none;
   }
+  // The evaluation's own verification (pose.cpp), over this map's keyframes.
+  MapAccess map;
+  map.keypoints = [this](uint32_t id) -> const std::vector<Keypoint>& { return keyframes_.at(id).keypoints; };
+  map.pose = [this](uint32_t id) { return keyframes_.at(id).map_from_camera; };
+  map.unusable = [&](uint32_t id) -> std::string {
+    const Keyframe& kf = keyframes_.at(id);
+    if (!kf.has_pose) return "no pose";
+    if (kf.width != image.width || kf.height != image.height) return "other image size";
+    return "";
+  };
   const auto results =
       database_->Query(image.bow, static_cast<size_t>(options_.localization.candidates), true);
-  if (results.empty()) {
-    fix.reason = "no keyframe shares a word with the image";
-    return fix;
-  }
-  std::string reasons;
-  for (const QueryResult& r : results) {
-    const Keyframe& kf = keyframes_.at(r.image);
-    std::string why;
-    if (!kf.has_pose) {
-      why = "no pose";
-    } else if (kf.width != image.width || kf.height != image.height) {
-      why = "other image size";
-    } else {
-      const auto matches = MatchesOf(r, image.features.keypoints, kf.keypoints);
-      PoseEstimate est = EstimatePose(matches, kf.map_from_camera,
-                                      GeometryOf(image.width, image.height),
-                                      options_.localization.pose);
-      if (est.success) {
-        for (int i : est.inlier_indices) fix.inlier_pixels.push_back(matches[i].query);
-        fix.success = true;
-        fix.map_from_camera = est.floor_from_query;
-        fix.covariance = est.covariance;
-        fix.keyframe = r.image;
-        fix.inliers = est.inliers;
-        fix.score = r.score;
-        return fix;
-      }
-      why = est.reason;
-    }
-    if (reasons.size() < 300) {
-      reasons += (reasons.empty() ? "" : "; ") + ("keyframe " + std::to_string(r.image) + ": " + why);
-    }
-  }
-  fix.reason = "none of " + std::to_string(results.size()) + " candidates verified (" + reasons + ")";
-  return fix;
+  return VerifyCandidates(results, image.bow, map, GeometryOf(image.width, image.height),
+                          options_.localization);
 }
 
 namespace {

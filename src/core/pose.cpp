@@ -280,17 +280,22 @@ Localization VerifyCandidates(const std::vector<QueryResult>& results, const Bow
   const size_t n = std::min(results.size(), static_cast<size_t>(o.candidates));
   for (size_t rank = 0; rank < n; ++rank) {
     const QueryResult& r = results[rank];
-    const auto matches = MatchesOf(r, query.source, map.keypoints(r.image));
-    PoseEstimate est = EstimatePose(matches, map.pose(r.image), geometry, o.pose);
-    if (est.success) {
-      loc.success = true;
-      loc.image = r.image;
-      loc.rank = static_cast<int>(rank);
-      loc.score = r.score;
-      loc.estimate = std::move(est);
-      return loc;
+    std::string why = map.unusable ? map.unusable(r.image) : std::string();
+    if (why.empty()) {
+      const auto matches = MatchesOf(r, query.source, map.keypoints(r.image));
+      PoseEstimate est = EstimatePose(matches, map.pose(r.image), geometry, o.pose);
+      if (est.success) {
+        loc.success = true;
+        loc.image = r.image;
+        loc.rank = static_cast<int>(rank);
+        loc.score = r.score;
+        for (int i : est.inlier_indices) loc.inlier_pixels.push_back(matches[i].query);
+        loc.estimate = std::move(est);
+        return loc;
+      }
+      why = est.reason;
     }
-    if (rank < 3) reasons += (reasons.empty() ? "" : "; ") + ("image " + std::to_string(r.image) + ": " + est.reason);
+    if (rank < 3) reasons += (reasons.empty() ? "" : "; ") + ("image " + std::to_string(r.image) + ": " + why);
   }
   loc.reason = "none of " + std::to_string(n) + " candidates verified (" + reasons +
                (n > 3 ? "; ..." : "") + ")";

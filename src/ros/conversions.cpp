@@ -80,6 +80,13 @@ cv::Mat ToFloorImage(const sensor_msgs::CompressedImage& msg) {
   return flipped;
 }
 
+geometry_msgs::Quaternion QuaternionFromYaw(double yaw) {
+  geometry_msgs::Quaternion q;
+  q.z = std::sin(0.5 * yaw);
+  q.w = std::cos(0.5 * yaw);
+  return q;
+}
+
 double YawOf(double qx, double qy, double qz, double qw) {
   // The rotated x axis: first column of the rotation matrix.
   const double r00 = 1.0 - 2.0 * (qy * qy + qz * qz);
@@ -166,8 +173,7 @@ geometry_msgs::PoseWithCovarianceStamped ToPoseWithCovariance(
   m.pose.pose.position.x = p.x;
   m.pose.pose.position.y = p.y;
   m.pose.pose.position.z = 0.0;
-  m.pose.pose.orientation.w = std::cos(0.5 * p.theta);
-  m.pose.pose.orientation.z = std::sin(0.5 * p.theta);
+  m.pose.pose.orientation = QuaternionFromYaw(p.theta);
   // 6x6 row-major over (x, y, z, roll, pitch, yaw).
   const int idx[3] = {0, 1, 5};
   for (int i = 0; i < 3; ++i) {

@@ -10,6 +10,7 @@
 #include <visualization_msgs/MarkerArray.h>
 
 #include "ground_texture_bow/CandidateList.h"
+#include "ground_texture_bow/core/enum_names.h"
 #include "ground_texture_bow/LoopClosure.h"
 #include "ground_texture_bow/core/config.h"
 #include "ground_texture_bow/ros/conversions.h"
@@ -18,48 +19,53 @@ namespace gtbow_ros {
 
 using ground_texture_bow::Status;
 
-Mode ParseMode(const std::string& name) {
-  if (name == "mapping") return Mode::kMapping;
-  if (name == "localization") return Mode::kLocalization;
-  if (name == "external") return Mode::kExternal;
-  throw std::invalid_argument("unknown mode '" + name + "' (mapping, localization or external)");
+namespace {
+constexpr gtbow::EnumName<Mode> kModes[] = {
+    {"mapping", Mode::kMapping}, {"localization", Mode::kLocalization}, {"external", Mode::kExternal}};
+}  // namespace
+
+Mode ParseMode(const std::string& name) { return gtbow::ParseEnumName(name, "mode", kModes); }
+std::string ModeName(Mode mode) { return gtbow::EnumValueName(mode, kModes); }
+
+gtbow::LocalizerOptions ServerOptions::DefaultCore() {
+  gtbow::LocalizerOptions core;
+  core.threads = 2;
+  core.meters_per_pixel = 0.00025;
+  core.localization.candidates = 5;
+  core.localization.pose.min_inliers = 6;
+  return core;
 }
 
-std::string ModeName(Mode mode) {
-  switch (mode) {
-    case Mode::kMapping: return "mapping";
-    case Mode::kLocalization: return "localization";
-    case Mode::kExternal: return "external";
-  }
-  return "unknown";
-}
+std::string DefaultPreset() { return GTBOW_CONFIG_DIR "/high_accuracy.yaml"; }
 
 void ServerOptions::Check() const {
   auto need = [](bool ok, const std::string& what) {
     if (!ok) throw std::invalid_argument("parameter " + what);
   };
   need(!vocabulary.empty() || !map.empty(), "~vocabulary (or ~map) must be set");
-  need(!preset.empty(), "~preset must be set");
   need(!map_frame.empty(), "~map_frame must not be empty");
   need(transport == "raw" || transport == "compressed", "~transport must be raw or compressed");
-  need(meters_per_pixel > 0 && std::isfinite(meters_per_pixel), "~meters_per_pixel must be > 0");
-  need(threads >= 1 && threads <= 64, "~threads must be in 1..64");
   need(tf_timeout >= 0, "~tf_timeout must be >= 0");
   need(keyframe_min_distance >= 0, "~keyframe_min_distance must be >= 0");
   need(keyframe_min_angle >= 0, "~keyframe_min_angle must be >= 0");
   need(keyframe_every_n >= 1, "~keyframe_every_n must be >= 1");
-  need(candidates >= 1, "~candidates must be >= 1");
-  need(min_inliers >= 3, "~min_inliers must be >= 3");
   need(exclude_recent >= 0, "~exclude_recent must be >= 0");
   need(localized_timeout > 0, "~localized_timeout must be > 0");
   need(planar_variance > 0, "~planar_variance must be > 0");
+  try {
+    core.Check();
+  } catch (const std::invalid_argument& e) {
+    throw std::invalid_argument(std::string("parameter (~threads, ~meters_per_pixel, ~candidates, "
+                                            "~min_inliers or the preset): ") + e.what());
+  }
 }
 
 ServerOptions ReadOptions(const ros::NodeHandle& pnh) {
   ServerOptions o;
   std::string mode = ModeName(o.mode);
   pnh.param("vocabulary", o.vocabulary, o.vocabulary);
-  pnh.param("preset", o.preset, std::string(GTBOW_CONFIG_DIR "/high_accuracy.yaml"));
+  pnh.param("preset", o.preset, o.preset);
+  if (o.preset.empty()) o.preset = DefaultPreset();
   pnh.param("map", o.map, o.map);
   pnh.param("mode", mode, mode);
   o.mode = ParseMode(mode);
@@ -67,20 +73,21 @@ ServerOptions ReadOptions(const ros::NodeHandle& pnh) {
   pnh.param("odom_frame", o.odom_frame, o.odom_frame);
   pnh.param("camera_frame", o.camera_frame, o.camera_frame);
   pnh.param("transport", o.transport, o.transport);
-  pnh.param("meters_per_pixel", o.meters_per_pixel, o.meters_per_pixel);
-  pnh.param("threads", o.threads, o.threads);
+  pnh.param("meters_per_pixel", o.core.meters_per_pixel, o.core.meters_per_pixel);
+  pnh.param("threads", o.core.threads, o.core.threads);
   pnh.param("use_tf", o.use_tf, o.use_tf);
   pnh.param("tf_timeout", o.tf_timeout, o.tf_timeout);
   pnh.param("keyframe_min_distance", o.keyframe_min_distance, o.keyframe_min_distance);
   pnh.param("keyframe_min_angle", o.keyframe_min_angle, o.keyframe_min_angle);
   pnh.param("keyframe_every_n", o.keyframe_every_n, o.keyframe_every_n);
-  pnh.param("candidates", o.candidates, o.candidates);
-  pnh.param("min_inliers", o.min_inliers, o.min_inliers);
+  pnh.param("candidates", o.core.localization.candidates, o.core.localization.candidates);
+  pnh.param("min_inliers", o.core.localization.pose.min_inliers, o.core.localization.pose.min_inliers);
   pnh.param("exclude_recent", o.exclude_recent, o.exclude_recent);
   pnh.param("publish_tf", o.publish_tf, o.publish_tf);
   pnh.param("localized_timeout", o.localized_timeout, o.localized_timeout);
   pnh.param("planar_variance", o.planar_variance, o.planar_variance);
   pnh.param("camera_height", o.camera_height, o.camera_height);
+  o.core.retrieval = gtbow::LoadRetrievalConfig(o.preset);
   o.Check();
   return o;
 }
@@ -97,14 +104,8 @@ LocalizerServer::LocalizerServer(ros::NodeHandle nh, ros::NodeHandle pnh,
   options_.Check();
   std::string vocab_path = options_.vocabulary;
   if (vocab_path.empty()) vocab_path = gtbow::Localizer::VocabularyPathOf(options_.map);
-  gtbow::LocalizerOptions lo;
-  lo.retrieval = gtbow::LoadRetrievalConfig(options_.preset);
-  lo.localization.candidates = options_.candidates;
-  lo.localization.pose.min_inliers = options_.min_inliers;
-  lo.meters_per_pixel = options_.meters_per_pixel;
-  lo.threads = options_.threads;
   std::shared_ptr<gtbow::Vocabulary> vocab = gtbow::Vocabulary::Load(vocab_path);
-  localizer_ = std::make_unique<gtbow::Localizer>(std::move(vocab), vocab_path, lo);
+  localizer_ = std::make_unique<gtbow::Localizer>(std::move(vocab), vocab_path, options_.core);
   if (!options_.map.empty()) localizer_->Load(options_.map);
 
   pose_pub_ = pnh_.advertise<geometry_msgs::PoseWithCovarianceStamped>("pose", 10);
@@ -114,14 +115,14 @@ LocalizerServer::LocalizerServer(ros::NodeHandle nh, ros::NodeHandle pnh,
   image_transport::ImageTransport pit(pnh_);
   debug_pub_ = pit.advertise("debug_image", 1);
 
-  services_.push_back(pnh_.advertiseService("query_candidates", &LocalizerServer::QueryCandidates, this));
-  services_.push_back(pnh_.advertiseService("add_keyframe", &LocalizerServer::AddKeyframe, this));
-  services_.push_back(pnh_.advertiseService("localize", &LocalizerServer::LocalizeSrv, this));
-  services_.push_back(pnh_.advertiseService("save_map", &LocalizerServer::SaveMap, this));
-  services_.push_back(pnh_.advertiseService("load_map", &LocalizerServer::LoadMap, this));
-  services_.push_back(pnh_.advertiseService("reset", &LocalizerServer::ResetSrv, this));
-  services_.push_back(pnh_.advertiseService("get_info", &LocalizerServer::GetInfo, this));
-  services_.push_back(pnh_.advertiseService("set_mode", &LocalizerServer::SetMode, this));
+  services_.push_back(pnh_.advertiseService("query_candidates", &LocalizerServer::OnQueryCandidates, this));
+  services_.push_back(pnh_.advertiseService("add_keyframe", &LocalizerServer::OnAddKeyframe, this));
+  services_.push_back(pnh_.advertiseService("localize", &LocalizerServer::OnLocalize, this));
+  services_.push_back(pnh_.advertiseService("save_map", &LocalizerServer::OnSaveMap, this));
+  services_.push_back(pnh_.advertiseService("load_map", &LocalizerServer::OnLoadMap, this));
+  services_.push_back(pnh_.advertiseService("reset", &LocalizerServer::OnReset, this));
+  services_.push_back(pnh_.advertiseService("get_info", &LocalizerServer::OnGetInfo, this));
+  services_.push_back(pnh_.advertiseService("set_mode", &LocalizerServer::OnSetMode, this));
 
   updater_.setHardwareID("ground_texture_bow");
   updater_.add("localizer", this, &LocalizerServer::Diagnose);
@@ -269,12 +270,12 @@ void LocalizerServer::ProcessImage(const Pending& msg) {
   std::vector<gtbow::Vec2> inliers;
   std::string caption = "no verified match";
   if (mode == Mode::kLocalization) {
-    const gtbow::PoseFix fix = localizer_->Localize(img);
+    const gtbow::Localization fix = localizer_->Localize(img);
     if (fix.success) {
       PublishFix(fix, header);
       inliers = fix.inlier_pixels;
-      caption = "fix from keyframe " + std::to_string(fix.keyframe) + ", " +
-                std::to_string(fix.inliers) + " inliers";
+      caption = "fix from keyframe " + std::to_string(fix.image) + ", " +
+                std::to_string(fix.estimate.inliers) + " inliers";
     } else {
       failed_fixes_++;
       ROS_DEBUG_THROTTLE(2.0, "ground_texture_bow: no fix: %s", fix.reason.c_str());
@@ -285,7 +286,7 @@ void LocalizerServer::ProcessImage(const Pending& msg) {
     // the backend inserts keyframes and filters candidates itself.
     const uint32_t recent =
         mode == Mode::kMapping ? static_cast<uint32_t>(options_.exclude_recent) : 0;
-    const auto cands = localizer_->Query(img, static_cast<size_t>(options_.candidates), true,
+    const auto cands = localizer_->Query(img, static_cast<size_t>(options_.core.localization.candidates), true,
                                          n > recent ? n - recent : 0, n);
     uint32_t query_id = ground_texture_bow::CandidateList::NO_ID;
     if (mode == Mode::kMapping && IsKeyframe(pose)) {
@@ -313,29 +314,26 @@ void LocalizerServer::ProcessImage(const Pending& msg) {
       std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
 }
 
-void LocalizerServer::PublishFix(const gtbow::PoseFix& fix, const std_msgs::Header& header) {
+void LocalizerServer::PublishFix(const gtbow::Localization& fix, const std_msgs::Header& header) {
   fixes_++;
   {
     std::lock_guard<std::mutex> lock(state_mutex_);
     last_fix_time_ = ros::Time::now();
   }
-  pose_pub_.publish(ToPoseWithCovariance(fix.map_from_camera, fix.covariance, header.stamp,
+  pose_pub_.publish(ToPoseWithCovariance(fix.estimate.floor_from_query, fix.estimate.covariance, header.stamp,
                                          options_.map_frame, options_.planar_variance));
   if (!options_.publish_tf) return;
   // map -> odom such that map -> odom -> camera gives the fix (planar).
   const auto odom = LookupFootprint(header.frame_id, header.stamp, options_.odom_frame, true);
   if (!odom) return;
-  const gtbow::Pose2D& m = fix.map_from_camera;
-  const double th = m.theta - odom->theta;
-  const double c = std::cos(th), s = std::sin(th);
+  const gtbow::Pose2D map_from_odom = gtbow::Compose(fix.estimate.floor_from_query, gtbow::Inverse(*odom));
   geometry_msgs::TransformStamped t;
   t.header.stamp = header.stamp;
   t.header.frame_id = options_.map_frame;
   t.child_frame_id = options_.odom_frame;
-  t.transform.translation.x = m.x - (c * odom->x - s * odom->y);
-  t.transform.translation.y = m.y - (s * odom->x + c * odom->y);
-  t.transform.rotation.z = std::sin(0.5 * th);
-  t.transform.rotation.w = std::cos(0.5 * th);
+  t.transform.translation.x = map_from_odom.x;
+  t.transform.translation.y = map_from_odom.y;
+  t.transform.rotation = QuaternionFromYaw(map_from_odom.theta);
   tf_broadcaster_.sendTransform(t);
 }
 
@@ -407,7 +405,7 @@ void LocalizerServer::PublishMarkers(const ros::TimerEvent&) {
   const auto kfs = localizer_->Keyframes();
   for (const auto& k : kfs) {
     if (!k.has_pose) continue;
-    const auto corners = gtbow::Footprint(k.map_from_camera, {k.width, k.height, options_.meters_per_pixel});
+    const auto corners = gtbow::Footprint(k.map_from_camera, {k.width, k.height, options_.core.meters_per_pixel});
     for (int i = 0; i < 4; ++i) {
       geometry_msgs::Point a, b;
       a.x = corners[i].x;
@@ -501,10 +499,10 @@ void LocalizerServer::ForgetMapState() {
   last_keyframe_pose_.reset();
 }
 
-bool LocalizerServer::QueryCandidates(ground_texture_bow::QueryCandidates::Request& req,
+bool LocalizerServer::OnQueryCandidates(ground_texture_bow::QueryCandidates::Request& req,
                                       ground_texture_bow::QueryCandidates::Response& res) {
   res.status = Serve("query_candidates", false, [&] {
-    const size_t k = req.k > 0 ? req.k : static_cast<size_t>(options_.candidates);
+    const size_t k = req.k > 0 ? req.k : static_cast<size_t>(options_.core.localization.candidates);
     std::vector<gtbow::Candidate> cands;
     if (req.use_keyframe_id) {
       cands = localizer_->QueryKeyframe(req.keyframe_id, k, req.verify);
@@ -517,7 +515,7 @@ bool LocalizerServer::QueryCandidates(ground_texture_bow::QueryCandidates::Reque
   return true;
 }
 
-bool LocalizerServer::AddKeyframe(ground_texture_bow::AddKeyframe::Request& req,
+bool LocalizerServer::OnAddKeyframe(ground_texture_bow::AddKeyframe::Request& req,
                                   ground_texture_bow::AddKeyframe::Response& res) {
   res.status = Serve("add_keyframe", false, [&] {
     if (mode_.load() == Mode::kLocalization) {
@@ -534,22 +532,22 @@ bool LocalizerServer::AddKeyframe(ground_texture_bow::AddKeyframe::Request& req,
   return true;
 }
 
-bool LocalizerServer::LocalizeSrv(ground_texture_bow::Localize::Request& req,
+bool LocalizerServer::OnLocalize(ground_texture_bow::Localize::Request& req,
                                   ground_texture_bow::Localize::Response& res) {
   res.status = Serve("localize", false, [&] {
-    const gtbow::PoseFix fix = localizer_->Localize(localizer_->Process(ToFloorImage(req.image)));
+    const gtbow::Localization fix = localizer_->Localize(localizer_->Process(ToFloorImage(req.image)));
     res.localized = fix.success;
     if (!fix.success) return MakeStatus(Status::NOT_FOUND, fix.reason);
-    res.pose = ToPoseWithCovariance(fix.map_from_camera, fix.covariance, req.image.header.stamp,
+    res.pose = ToPoseWithCovariance(fix.estimate.floor_from_query, fix.estimate.covariance, req.image.header.stamp,
                                     options_.map_frame, options_.planar_variance);
-    res.keyframe_id = fix.keyframe;
-    res.inliers = static_cast<uint32_t>(fix.inliers);
-    return MakeStatus(Status::OK, "localized against keyframe " + std::to_string(fix.keyframe));
+    res.keyframe_id = fix.image;
+    res.inliers = static_cast<uint32_t>(fix.estimate.inliers);
+    return MakeStatus(Status::OK, "localized against keyframe " + std::to_string(fix.image));
   });
   return true;
 }
 
-bool LocalizerServer::SaveMap(ground_texture_bow::SaveMap::Request& req,
+bool LocalizerServer::OnSaveMap(ground_texture_bow::SaveMap::Request& req,
                               ground_texture_bow::SaveMap::Response& res) {
   res.status = Serve("save_map", true, [&] {
     if (mode_.load() == Mode::kLocalization) {
@@ -565,7 +563,7 @@ bool LocalizerServer::SaveMap(ground_texture_bow::SaveMap::Request& req,
   return true;
 }
 
-bool LocalizerServer::LoadMap(ground_texture_bow::LoadMap::Request& req,
+bool LocalizerServer::OnLoadMap(ground_texture_bow::LoadMap::Request& req,
                               ground_texture_bow::LoadMap::Response& res) {
   res.status = Serve("load_map", true, [&] {
     if (req.path.empty()) throw std::invalid_argument("empty path");
@@ -578,49 +576,50 @@ bool LocalizerServer::LoadMap(ground_texture_bow::LoadMap::Request& req,
   return true;
 }
 
-bool LocalizerServer::ResetSrv(ground_texture_bow::Reset::Request&, ground_texture_bow::Reset::Response& res) {
-  if (mode_.load() == Mode::kLocalization) {
-    res.status = MakeStatus(Status::FAILED_PRECONDITION, "localization mode: the map is read-only");
-    return true;
-  }
-  localizer_->Reset();
-  ForgetMapState();
-  res.status = MakeStatus(Status::OK, "map cleared");
+bool LocalizerServer::OnReset(ground_texture_bow::Reset::Request&, ground_texture_bow::Reset::Response& res) {
+  res.status = Serve("reset", false, [&] {
+    if (mode_.load() == Mode::kLocalization) {
+      return MakeStatus(Status::FAILED_PRECONDITION, "localization mode: the map is read-only");
+    }
+    localizer_->Reset();
+    ForgetMapState();
+    return MakeStatus(Status::OK, "map cleared");
+  });
   return true;
 }
 
-bool LocalizerServer::GetInfo(ground_texture_bow::GetInfo::Request&, ground_texture_bow::GetInfo::Response& res) {
-  res.mode = ModeName(mode_.load());
-  res.database_size = static_cast<uint32_t>(localizer_->size());
-  res.vocabulary_size = localizer_->vocabulary().size();
-  res.vocabulary_path = localizer_->vocabulary_path();
-  res.preset = options_.preset;
-  res.images_received = received_.load();
-  res.images_processed = processed_.load();
-  res.images_dropped = dropped_.load();
-  res.debug_images = debug_images_.load();
-  res.images_rejected = rejected_.load();
-  res.requests_rejected = rejected_requests_.load();
-  res.fixes = fixes_.load();
-  res.loop_closures = loop_closures_.load();
-  {
-    std::lock_guard<std::mutex> lock(state_mutex_);
-    res.localized = !last_fix_time_.isZero() &&
-                    (ros::Time::now() - last_fix_time_).toSec() <= options_.localized_timeout;
-  }
-  res.status = MakeStatus(Status::OK, "");
+bool LocalizerServer::OnGetInfo(ground_texture_bow::GetInfo::Request&, ground_texture_bow::GetInfo::Response& res) {
+  res.status = Serve("get_info", false, [&] {
+    res.mode = ModeName(mode_.load());
+    res.database_size = static_cast<uint32_t>(localizer_->size());
+    res.vocabulary_size = localizer_->vocabulary().size();
+    res.vocabulary_path = localizer_->vocabulary_path();
+    res.preset = options_.preset;
+    res.images_received = received_.load();
+    res.images_processed = processed_.load();
+    res.images_dropped = dropped_.load();
+    res.debug_images = debug_images_.load();
+    res.images_rejected = rejected_.load();
+    res.requests_rejected = rejected_requests_.load();
+    res.fixes = fixes_.load();
+    res.loop_closures = loop_closures_.load();
+    {
+      std::lock_guard<std::mutex> lock(state_mutex_);
+      res.localized = !last_fix_time_.isZero() &&
+                      (ros::Time::now() - last_fix_time_).toSec() <= options_.localized_timeout;
+    }
+    return MakeStatus(Status::OK, "");
+  });
   return true;
 }
 
-bool LocalizerServer::SetMode(ground_texture_bow::SetMode::Request& req,
-                              ground_texture_bow::SetMode::Response& res) {
-  try {
+bool LocalizerServer::OnSetMode(ground_texture_bow::SetMode::Request& req,
+                                ground_texture_bow::SetMode::Response& res) {
+  res.status = Serve("set_mode", true, [&] {
     const Mode m = ParseMode(req.mode);
     res.previous_mode = ModeName(mode_.exchange(m));
-    res.status = MakeStatus(Status::OK, "mode " + req.mode);
-  } catch (const std::exception& e) {
-    res.status = MakeStatus(Status::INVALID_ARGUMENT, e.what());
-  }
+    return MakeStatus(Status::OK, "mode " + req.mode);
+  });
   return true;
 }
 

@@ -26,6 +26,7 @@
 #include <thread>
 
 #include "commands.h"
+#include "ground_texture_bow/core/parallel.h"
 #include "ground_texture_bow/core/config.h"
 #include "ground_texture_bow/core/database.h"
 #include "ground_texture_bow/core/file_util.h"
@@ -67,19 +68,6 @@ size_t ResidentBytes() {
   return 0;
 }
 
-// Runs f(i) for i in [0, n) on `threads` threads.
-template <typename F>
-void ParallelFor(size_t n, int threads, F&& f) {
-  const int nt = threads > 0 ? threads : static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
-  std::atomic<size_t> next{0};
-  std::vector<std::thread> pool;
-  for (int t = 0; t < nt; ++t) {
-    pool.emplace_back([&]() {
-      for (size_t i; (i = next++) < n;) f(i);
-    });
-  }
-  for (auto& t : pool) t.join();
-}
 
 // Keypoints of the real images, each with its rows and soft-assignment weights, for sampling
 // synthetic images.
@@ -215,7 +203,7 @@ PresetResult RunPreset(const ScalingArgs& a, const std::string& name, const Retr
     while (next < target) {
       const size_t n = std::min(kBatch, target - next);
       batch.assign(n, BowVector());
-      ParallelFor(n, a.threads, [&](size_t i) {
+      ParallelForEach(n, a.threads, [&](size_t i) {
         const size_t id = next + i;
         batch[i] = id < real.size() ? real[id] : pool.Sample(enc, a.seed * 1000003u + id);
       });

@@ -12,7 +12,6 @@ void RegisterTrainVocab(CLI::App& app);
 void RegisterBenchRetrieval(CLI::App& app);
 void RegisterBenchScaling(CLI::App& app);   // gtbow bench
 void RegisterEval(CLI::App& app);
-void RegisterImagesToBag(CLI::App& app);  // ROS: writes rosbags
 
 }  // namespace tools
 }  // namespace gtbow

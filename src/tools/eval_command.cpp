@@ -1,4 +1,4 @@
-// gtbow eval: every metric of shared/DATASET_FORMAT.md on a dataset, for one or more retrieval
+// gtbow eval: every metric of docs/DATASET_FORMAT.md on a dataset, for one or more retrieval
 // presets: retrieval (mAP@1000, Recall@N, score separation), global localization (success at
 // 4.8 mm and 1.5 degrees, error distribution) and timing laid out like the paper's Table II.
 // Writes results.json (every number), summary.md (ours next to the paper's) and, through
@@ -18,11 +18,13 @@
 #include <thread>
 
 #include "commands.h"
+#include "json_writer.h"
+#include "ground_texture_bow/core/parallel.h"
 #include "ground_texture_bow/core/binary_io.h"
 #include "ground_texture_bow/core/config.h"
 #include "ground_texture_bow/core/database.h"
 #include "ground_texture_bow/core/file_util.h"
-#include "ground_texture_bow/core/metrics.h"
+#include "ground_texture_bow/eval/metrics.h"
 #include "ground_texture_bow/core/pose.h"
 #include "ground_texture_bow/core/progress.h"
 #include "image_source.h"
@@ -71,70 +73,6 @@ struct EvalArgs {
   std::string dump_rankings;
   std::string dump_poses;
   bool quiet = false;
-};
-
-// A minimal JSON writer: values are appended in order; the caller keeps the structure valid.
-class Json {
- public:
-  Json& Key(const std::string& k) {
-    Sep();
-    s_ << Quote(k) << ": ";
-    fresh_ = true;
-    return *this;
-  }
-  Json& Str(const std::string& v) { return Raw(Quote(v)); }
-  Json& Num(double v) {
-    if (!std::isfinite(v)) return Raw("null");
-    char b[32];
-    std::snprintf(b, sizeof(b), "%.9g", v);
-    return Raw(b);
-  }
-  Json& Int(long long v) { return Raw(std::to_string(v)); }
-  Json& Bool(bool v) { return Raw(v ? "true" : "false"); }
-  Json& Open(char c) {
-    Sep();
-    s_ << c;
-    fresh_ = true;
-    return *this;
-  }
-  Json& Close(char c) {
-    s_ << c;
-    fresh_ = false;
-    return *this;
-  }
-  Json& Nums(const std::vector<double>& v) {
-    Open('[');
-    for (double x : v) Num(x);
-    return Close(']');
-  }
-  std::string str() const { return s_.str() + "\n"; }
-
- private:
-  Json& Raw(const std::string& v) {
-    Sep();
-    s_ << v;
-    return *this;
-  }
-  void Sep() {
-    if (!fresh_) s_ << ", ";
-    fresh_ = false;
-  }
-  static std::string Quote(const std::string& v) {
-    std::string o = "\"";
-    for (char ch : v) {
-      if (ch == '"' || ch == '\\') o += '\\';
-      if (static_cast<unsigned char>(ch) < 0x20) {
-        char b[8];
-        std::snprintf(b, sizeof(b), "\\u%04x", ch);
-        o += b;
-        continue;
-      }
-      o += ch;
-    }
-    return o + "\"";
-  }
-  std::ostringstream s_;
-  bool fresh_ = true;
 };
 
 // Age of a query split in days: dataset.yaml's query_days, else the digits of query_dayNNN.
@@ -203,30 +141,6 @@ std::unique_ptr<Vocabulary> GetVocabulary(const EvalArgs& a, const RetrievalConf
   return DatasetVocabulary(r, c, desc);
 }
 
-// Runs f(i) for i in [0, n) on `threads` threads.
-template <typename F>
-void ParallelFor(size_t n, int threads, F&& f) {
-  const int nt = threads > 0 ? threads : static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
-  std::atomic<size_t> next{0};
-  std::vector<std::thread> pool;
-  std::exception_ptr error;
-  std::mutex m;
-  for (int t = 0; t < nt; ++t) {
-    pool.emplace_back([&]() {
-      for (size_t i; (i = next.fetch_add(1)) < n;) {
-        try {
-          f(i);
-        } catch (...) {
-          std::lock_guard<std::mutex> lock(m);
-          if (!error) error = std::current_exception();
-          next = n;
-        }
-      }
-    });
-  }
-  for (auto& t : pool) t.join();
-  if (error) std::rethrow_exception(error);
-}
 
 PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const Dataset& ds,
                         const std::vector<std::string>& splits, std::string* rankings,
@@ -329,7 +243,7 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
     };
     std::vector<PerQuery> per(q_src.size());
     ProgressBar bar("queries " + split, q_src.size(), !a.quiet);
-    ParallelFor(q_src.size(), a.threads, [&](size_t qi) {
+    ParallelForEach(q_src.size(), a.threads, [&](size_t qi) {
       PerQuery& p = per[qi];
       p.truth = ds.PoseOf(q_src.name(qi));
       size_t num_rel = 0;
@@ -528,7 +442,7 @@ std::string ToMarkdown(const EvalArgs& a, const std::vector<PresetResult>& resul
   std::ostringstream md;
   char b[512];
   md << "# gtbow eval: " << a.dataset << "\n\n";
-  md << "Protocol: shared/DATASET_FORMAT.md. Localization verifies the top " << a.candidates
+  md << "Protocol: docs/DATASET_FORMAT.md. Localization verifies the top " << a.candidates
      << " candidates; success is a position error of at most 4.8 mm and a heading error of at "
         "most 1.5 degrees (no estimate counts as a failure). \"sep. vs disjoint\" is a "
         "diagnostic: the separation when only false results that do not overlap the query at all "
@@ -678,7 +592,7 @@ void RegisterEval(CLI::App& app) {
   auto a = std::make_shared<EvalArgs>();
   CLI::App* cmd = app.add_subcommand(
       "eval", "Every metric of the evaluation protocol: retrieval, localization and timing");
-  cmd->add_option("--dataset", a->dataset, "Dataset (shared/DATASET_FORMAT.md) with database and query splits")->required();
+  cmd->add_option("--dataset", a->dataset, "Dataset (docs/DATASET_FORMAT.md) with database and query splits")->required();
   cmd->add_option("--vocab", a->vocab, "Vocabulary file (default: train on the dataset's train split)");
   cmd->add_option("--preset", a->presets, "Retrieval configuration YAML (repeatable); default: high accuracy");
   cmd->add_option("-o,--out", a->out, "Output directory (results.json, summary.md, plots)")->capture_default_str();

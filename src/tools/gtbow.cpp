@@ -21,7 +21,6 @@ int main(int argc, char** argv) {
   gtbow::tools::RegisterBenchRetrieval(app);
   gtbow::tools::RegisterBenchScaling(app);
   gtbow::tools::RegisterEval(app);
-  gtbow::tools::RegisterImagesToBag(app);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

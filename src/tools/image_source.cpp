@@ -12,6 +12,7 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "ground_texture_bow/core/parallel.h"
 #include "ground_texture_bow/core/binary_io.h"
 #include "ground_texture_bow/core/progress.h"
 
@@ -63,34 +64,15 @@ void ImageSource::Subsample(size_t max_images) {
 
 std::vector<ImageFeatures> ExtractAll(const ImageSource& source, const FeatureOptions& options,
                                       int threads, bool progress) {
-  const int n_threads = threads > 0 ? threads : static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
   std::vector<ImageFeatures> out(source.size());
-  std::atomic<size_t> next{0};
-  std::atomic<bool> failed{false};
-  std::string error;
-  std::mutex m;
   ProgressBar bar("features", source.size(), progress);
-  auto worker = [&]() {
-    const FeatureExtractor fx(options);
-    while (!failed) {
-      const size_t i = next.fetch_add(1);
-      if (i >= source.size()) return;
-      try {
+  ParallelForEach(
+      source.size(), threads, [&] { return FeatureExtractor(options); },
+      [&](const FeatureExtractor& fx, size_t i) {
         out[i] = fx.Extract(source.LoadGray(i));
-      } catch (const std::exception& e) {
-        std::lock_guard<std::mutex> lock(m);
-        error = e.what();
-        failed = true;
-        return;
-      }
-      bar.Add();
-    }
-  };
-  std::vector<std::thread> pool;
-  for (int t = 0; t < n_threads; ++t) pool.emplace_back(worker);
-  for (auto& t : pool) t.join();
+        bar.Add();
+      });
   bar.Finish();
-  if (failed) throw std::runtime_error(error);
   return out;
 }
 
@@ -225,18 +207,10 @@ std::vector<BowVector> EncodeAll(const BowEncoder& encoder, const std::vector<Im
                                  int threads, bool progress) {
   std::vector<BowVector> out(f.size());
   ProgressBar bar("transform", f.size(), progress);
-  const int nt = threads > 0 ? threads : static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
-  std::atomic<size_t> next{0};
-  std::vector<std::thread> pool;
-  for (int t = 0; t < nt; ++t) {
-    pool.emplace_back([&]() {
-      for (size_t i; (i = next.fetch_add(1)) < f.size();) {
-        out[i] = encoder.Encode(f[i]);
-        bar.Add();
-      }
-    });
-  }
-  for (auto& t : pool) t.join();
+  ParallelForEach(f.size(), threads, [&](size_t i) {
+    out[i] = encoder.Encode(f[i]);
+    bar.Add();
+  });
   return out;
 }
 

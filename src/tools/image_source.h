@@ -9,7 +9,7 @@
 
 #include "ground_texture_bow/core/bow.h"
 #include "ground_texture_bow/core/config.h"
-#include "ground_texture_bow/core/dataset.h"
+#include "ground_texture_bow/eval/dataset.h"
 #include "ground_texture_bow/core/features.h"
 
 namespace gtbow {

@@ -6,7 +6,7 @@
 #include <vector>
 
 #include "commands.h"
-#include "ground_texture_bow/core/synth/generator.h"
+#include "ground_texture_bow/eval/synth/generator.h"
 
 namespace gtbow {
 namespace tools {

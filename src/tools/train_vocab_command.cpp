@@ -58,7 +58,7 @@ void RegisterTrainVocab(CLI::App& app) {
   CLI::App* cmd = app.add_subcommand("train-vocab", "Train a vocabulary on a dataset split or an image folder");
   cmd->add_option("-o,--out", a->out, "Output vocabulary file")->required();
   cmd->add_option("--preset", a->preset, "Retrieval configuration YAML (config/*.yaml); default: high accuracy");
-  cmd->add_option("--dataset", a->dataset, "Dataset directory (shared/DATASET_FORMAT.md)");
+  cmd->add_option("--dataset", a->dataset, "Dataset directory (docs/DATASET_FORMAT.md)");
   cmd->add_option("--split", a->split, "Dataset split to train on")->capture_default_str();
   cmd->add_option("--images", a->images, "Or: a folder of images");
   cmd->add_option("--words", a->words, "Override the number of words (AKM)");

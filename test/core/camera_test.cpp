@@ -1,4 +1,4 @@
-#include "ground_texture_bow/core/synth/camera.h"
+#include "ground_texture_bow/eval/synth/camera.h"
 
 #include <cmath>
 #include <stdexcept>

@@ -18,7 +18,8 @@
 
 #include "ground_texture_bow/core/file_util.h"
 #include "ground_texture_bow/core/localizer.h"
-#include "ground_texture_bow/core/synth/generator.h"
+#include "ground_texture_bow/eval/synth/generator.h"
+#include "test_scene.h"
 #include "test_util.h"
 
 namespace gtbow {
@@ -37,23 +38,16 @@ const Scene& TheScene() {
     // The fuzzers' 64-word fixture vocabulary: retrieval quality is beside the point here,
     // identical answers are.
     s.vocabulary = Vocabulary::Load(GTBOW_FUZZ_DATA "/tiny.gtvoc");
-    synth::SynthOptions so;
-    so.area_width = 0.25;
-    so.area_height = 0.2;
-    so.train_images = 0;
-    so.queries_per_split = 0;
-    const synth::DatasetPlan plan = synth::PlanDataset(so);
-    const synth::Floor floor(so.surface, so.seed);
-    const synth::Camera camera(so.camera);
-    for (const auto& im : plan.images) {
+    const synth::Scene floor = testing_util::SmallScene(0.25, 0.2, 0);
+    for (const auto& im : floor.plan().images) {
       if (s.map_images.size() == 24) break;
-      s.map_images.push_back(synth::RenderPlannedImage(floor, camera, so, im));
+      s.map_images.push_back(floor.Render(im));
       if (s.map_images.size() % 4 == 0) {
         synth::PlannedImage q = im;
         q.pose.x += 0.003;
         q.day = 30;
         q.visit = 100;
-        s.probes.push_back(synth::RenderPlannedImage(floor, camera, so, q));
+        s.probes.push_back(floor.Render(q));
       }
     }
     return s;

@@ -6,7 +6,7 @@
 #include <gtest/gtest.h>
 #include <opencv2/imgproc.hpp>
 
-#include "ground_texture_bow/core/synth/camera.h"
+#include "ground_texture_bow/eval/synth/camera.h"
 
 namespace gtbow {
 namespace {

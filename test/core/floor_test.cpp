@@ -1,6 +1,6 @@
 // Tests of the procedural floor seen through the camera: exact geometry, determinism, floor-
 // fixed texture, multi-scale structure, ageing, and ORB repeatability as in real ground texture.
-#include "ground_texture_bow/core/synth/floor.h"
+#include "ground_texture_bow/eval/synth/floor.h"
 
 #include <cmath>
 #include <cstdio>
@@ -12,7 +12,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "ground_texture_bow/core/geometry.h"
-#include "ground_texture_bow/core/synth/camera.h"
+#include "ground_texture_bow/eval/synth/camera.h"
 
 namespace gtbow {
 namespace synth {

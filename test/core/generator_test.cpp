@@ -1,4 +1,4 @@
-#include "ground_texture_bow/core/synth/generator.h"
+#include "ground_texture_bow/eval/synth/generator.h"
 
 #include <unistd.h>
 

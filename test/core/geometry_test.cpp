@@ -81,5 +81,31 @@ TEST(Geometry, WrapAngle) {
   EXPECT_NEAR(WrapAngle(-0.5), -0.5, 1e-12);
 }
 
+TEST(Geometry, ComposeAndInverse) {
+  // A quarter turn, then one metre along the new x axis: one metre along the old y axis.
+  const Pose2D turn{2.0, 3.0, M_PI / 2};
+  const Pose2D step{1.0, 0.0, 0.25};
+  const Pose2D c = Compose(turn, step);
+  EXPECT_NEAR(c.x, 2.0, 1e-12);
+  EXPECT_NEAR(c.y, 4.0, 1e-12);
+  EXPECT_NEAR(c.theta, M_PI / 2 + 0.25, 1e-12);
+  // The composed pose maps points like the two poses one after the other.
+  const ImageGeometry g{640, 480, 0.001};
+  const Vec2 px{100.0, 50.0};
+  const Vec2 through_step = FloorFromImage(step, g, px);
+  const Vec2 a = FloorFromImage(turn, ImageGeometry{1, 1, 1.0}, through_step);
+  const Vec2 b = FloorFromImage(c, g, px);
+  EXPECT_NEAR(a.x, b.x, 1e-12);
+  EXPECT_NEAR(a.y, b.y, 1e-12);
+  for (const Pose2D& p : {turn, step, c, Pose2D{-0.3, 7.0, -2.9}}) {
+    const Pose2D i = Compose(p, Inverse(p)), j = Compose(Inverse(p), p);
+    for (const Pose2D& q : {i, j}) {
+      EXPECT_NEAR(q.x, 0.0, 1e-12);
+      EXPECT_NEAR(q.y, 0.0, 1e-12);
+      EXPECT_NEAR(WrapAngle(q.theta), 0.0, 1e-12);
+    }
+  }
+}
+
 }  // namespace
 }  // namespace gtbow

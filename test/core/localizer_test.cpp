@@ -4,6 +4,9 @@
 #include "ground_texture_bow/core/localizer.h"
 
 #include <chrono>
+#include <cctype>
+#include <optional>
+#include <map>
 #include <cmath>
 #include <cstdio>
 #include <cstring>
@@ -14,8 +17,9 @@
 #include <opencv2/imgproc.hpp>
 
 #include "ground_texture_bow/core/file_util.h"
-#include "ground_texture_bow/core/synth/generator.h"
+#include "ground_texture_bow/eval/synth/generator.h"
 #include "../fuzz/fuzz_util.h"
+#include "test_scene.h"
 #include "test_util.h"
 
 namespace gtbow {
@@ -33,20 +37,15 @@ struct Scene {
 const Scene& TheScene() {
   static const Scene scene = [] {
     Scene s;
-    s.so.area_width = 0.4;
-    s.so.area_height = 0.3;
-    s.so.train_images = 30;
-    s.so.queries_per_split = 0;
-    const synth::DatasetPlan plan = synth::PlanDataset(s.so);
-    const synth::Floor floor(s.so.surface, s.so.seed);
-    const synth::Camera camera(s.so.camera);
+    const synth::Scene floor = testing_util::SmallScene(0.4, 0.3, 30);
+    s.so = floor.options();
     RetrievalConfig cfg;
     cfg.vocabulary.num_words = 2000;
     const FeatureExtractor fx(cfg.features);
     std::vector<cv::Mat> train;
     std::vector<uint32_t> image_of;
-    for (const auto& im : plan.images) {
-      cv::Mat img = synth::RenderPlannedImage(floor, camera, s.so, im);
+    for (const auto& im : floor.plan().images) {
+      cv::Mat img = floor.Render(im);
       if (im.split == "train") {
         const ImageFeatures f = fx.Extract(img);
         train.push_back(f.descriptors);
@@ -62,12 +61,13 @@ const Scene& TheScene() {
       im.pose = {s.db_poses[d].x + 0.004, s.db_poses[d].y - 0.003, s.db_poses[d].theta + 0.05};
       im.day = 30;
       im.visit = 100;
-      s.revisits.push_back(synth::RenderPlannedImage(floor, camera, s.so, im));
+      s.revisits.push_back(floor.Render(im));
       s.revisit_poses.push_back(im.pose);
     }
     cv::Mat desc;
     cv::vconcat(train, desc);
     s.vocabulary = TrainVocabulary(cfg.vocabulary, desc, image_of, false);
+    s.vocabulary->set_extractor(FormatFeatureOptions(cfg.features));  // as gtbow train-vocab does
     return s;
   }();
   return scene;
@@ -104,15 +104,15 @@ TEST(Localizer, GlobalFixesOfRevisitsAreWithinTheProtocolsTolerance) {
   const auto loc = Mapped(true);
   ASSERT_EQ(loc->size(), s.db_images.size());
   for (size_t q = 0; q < s.revisits.size(); ++q) {
-    const PoseFix fix = loc->Localize(loc->Process(s.revisits[q]));
+    const Localization fix = loc->Localize(loc->Process(s.revisits[q]));
     ASSERT_TRUE(fix.success) << fix.reason;
     const Pose2D& t = s.revisit_poses[q];
-    EXPECT_LT(1000 * std::hypot(fix.map_from_camera.x - t.x, fix.map_from_camera.y - t.y), 4.8);
-    EXPECT_LT(std::abs(std::remainder(fix.map_from_camera.theta - t.theta, 2 * M_PI)) * 180 / M_PI,
-              1.5);
-    EXPECT_GT(fix.covariance[0], 0.0);
-    EXPECT_GE(fix.inliers, 6);
-    EXPECT_EQ(fix.inlier_pixels.size(), static_cast<size_t>(fix.inliers));
+    const Pose2D& p = fix.estimate.floor_from_query;
+    EXPECT_LT(1000 * std::hypot(p.x - t.x, p.y - t.y), 4.8);
+    EXPECT_LT(std::abs(std::remainder(p.theta - t.theta, 2 * M_PI)) * 180 / M_PI, 1.5);
+    EXPECT_GT(fix.estimate.covariance[0], 0.0);
+    EXPECT_GE(fix.estimate.inliers, 6);
+    EXPECT_EQ(fix.inlier_pixels.size(), static_cast<size_t>(fix.estimate.inliers));
   }
 }
 
@@ -133,7 +133,7 @@ TEST(Localizer, CandidatesCarryVerifiedRelativePosesAndNoFixWithoutPoses) {
     EXPECT_LT(1000 * std::hypot(est.x - truth.x, est.y - truth.y), 4.8);
     EXPECT_LT(std::abs(std::remainder(est.theta - truth.theta, 2 * M_PI)), 1.5 * M_PI / 180);
     // Without poses there is nothing to localize against.
-    const PoseFix fix = loc->Localize(img);
+    const Localization fix = loc->Localize(img);
     EXPECT_FALSE(fix.success);
     EXPECT_NE(fix.reason.find("no pose"), std::string::npos) << fix.reason;
   }
@@ -193,12 +193,14 @@ std::string Describe(const Candidate& c) {
     << " cov " << Describe(r.covariance) << " inlier pixels " << Describe(c.inliers);
   return o.str();
 }
-std::string Describe(const PoseFix& f) {
+std::string Describe(const Localization& f) {
   std::ostringstream o;
   o.precision(17);
-  o << "success " << f.success << " '" << f.reason << "' pose " << Describe(f.map_from_camera)
-    << " cov " << Describe(f.covariance) << " keyframe " << f.keyframe << " inliers " << f.inliers
-    << " score " << f.score << " pixels " << Describe(f.inlier_pixels);
+  const PoseEstimate& e = f.estimate;
+  o << "success " << f.success << " '" << f.reason << "' image " << f.image << " rank " << f.rank
+    << " score " << f.score << " pose " << Describe(e.floor_from_query) << " cov "
+    << Describe(e.covariance) << " inliers " << e.inliers << " rms " << e.residual_rms
+    << " pixels " << Describe(f.inlier_pixels);
   return o.str();
 }
 
@@ -223,7 +225,7 @@ TEST_F(LocalizerFiles, SavedMapsLoadAndAnswerIdentically) {
     ASSERT_EQ(a.size(), b.size());
     ASSERT_FALSE(a.empty());
     for (size_t k = 0; k < a.size(); ++k) EXPECT_EQ(Describe(a[k]), Describe(b[k])) << q << ' ' << k;
-    const PoseFix fa = loc->Localize(img), fb = fresh.Localize(img);
+    const Localization fa = loc->Localize(img), fb = fresh.Localize(img);
     EXPECT_EQ(Describe(fa), Describe(fb)) << q;
   }
   const auto k7 = fresh.KeyframeInfo(7);
@@ -374,6 +376,91 @@ TEST_F(LocalizerFiles, DamagedOrForeignMapsAreRefusedAndTheCurrentMapKept) {
   EXPECT_TRUE(testing_util::Temporaries(dir()).empty());
 }
 
+// Every key a preset records guards the map: a map saved under one preset is refused under a
+// preset that differs in any one key (or, where that key alone cannot change, with the keys it
+// needs), and the refusal names the key. The keys come from the one option table (config.cpp).
+TEST_F(LocalizerFiles, EveryKeyOfThePresetGuardsTheMap) {
+  const Scene& s = TheScene();
+  const auto path = dir() / "map.gtmap";
+  {
+    Localizer loc(s.vocabulary, "test.gtvoc", Options());
+    for (size_t i = 0; i < 3; ++i) loc.Add(loc.Process(s.db_images[i]), 1, s.db_poses[i]);
+    loc.Save(path);
+  }
+  const RetrievalConfig base = Options().retrieval;
+  const std::string base_text = FormatRetrievalConfig(base);
+  // Keys that cannot change alone, and what must change with them.
+  const std::map<std::string, std::vector<std::string>> companions = {
+      {"features.type", {"vocabulary.metric: l2", "bow.size_binning: percentile"}},
+      {"vocabulary.kind", {"bow.soft_assignment: 1"}}};
+  const std::vector<std::string> names = {"orb", "sift", "none", "normalize", "clahe", "akm", "hkm",
+                                          "l2_bytes", "hamming", "l2", "flann", "ivf", "octave",
+                                          "percentile", "dot", "dbow_l1", "global", "per_bin"};
+  // The text with `section.key` set to `value`.
+  auto with = [](std::string text, const std::string& dotted, const std::string& value) {
+    const std::string section = dotted.substr(0, dotted.find('.')) + ":\n";
+    const std::string line = "  " + dotted.substr(dotted.find('.') + 1) + ": ";
+    const size_t at = text.find(line, text.find(section));
+    const size_t end = text.find('\n', at);
+    return text.replace(at + line.size(), end - at - line.size(), value);
+  };
+  int checked = 0;
+  for (const std::string& key : RetrievalConfigKeys()) {
+    const std::string line = "  " + key.substr(key.find('.') + 1) + ": ";
+    const size_t at = base_text.find(line, base_text.find(key.substr(0, key.find('.')) + ":\n"));
+    ASSERT_NE(at, std::string::npos) << key;
+    const std::string old_value =
+        base_text.substr(at + line.size(), base_text.find('\n', at) - at - line.size());
+    std::vector<std::string> candidates;
+    if (old_value == "true" || old_value == "false") {
+      candidates = {old_value == "true" ? "false" : "true"};
+    } else if (std::isdigit(static_cast<unsigned char>(old_value[0])) || old_value[0] == '-') {
+      const double v = std::stod(old_value);
+      for (double c : {v * 2, v + 1, v / 2, v - 1, 1.0, 2.0, 0.5, 0.0, 3.0}) {
+        std::ostringstream o;
+        o << c;
+        candidates.push_back(o.str());
+      }
+    } else {
+      candidates = names;
+    }
+    std::optional<RetrievalConfig> changed;
+    for (const std::string& value : candidates) {
+      std::string text = with(base_text, key, value);
+      if (companions.count(key)) {
+        for (const std::string& c : companions.at(key)) {
+          text = with(text, c.substr(0, c.find(':')), c.substr(c.find(':') + 2));
+        }
+      }
+      try {
+        RetrievalConfig c = ParseRetrievalConfig(text, key);
+        if (FormatRetrievalConfig(c) != base_text) {
+          changed = c;
+          break;
+        }
+      } catch (const std::exception&) {
+      }
+    }
+    if (!changed) {
+      ADD_FAILURE() << key << ": no other valid value found to test it";
+      continue;
+    }
+    LocalizerOptions o = Options();
+    o.retrieval = *changed;
+    std::string refusal;
+    try {
+      Localizer other(s.vocabulary, "test.gtvoc", o);
+      other.Load(path);
+    } catch (const std::exception& e) {
+      refusal = e.what();
+    }
+    EXPECT_NE(refusal.find(key), std::string::npos)
+        << key << ": " << (refusal.empty() ? "the map loaded" : refusal);
+    ++checked;
+  }
+  EXPECT_EQ(checked, static_cast<int>(RetrievalConfigKeys().size()));
+}
+
 TEST(Localizer, BadImagesAndPosesGetClearErrors) {
   const Scene& s = TheScene();
   Localizer loc(s.vocabulary, "test.gtvoc", Options());
@@ -405,7 +492,7 @@ TEST(Localizer, BadImagesAndPosesGetClearErrors) {
   }
   const ProcessedImage blank = loc.Process(cv::Mat(480, 640, CV_8UC1, cv::Scalar(128)));
   EXPECT_EQ(blank.features.size(), 0u);
-  const PoseFix fix = loc.Localize(blank);
+  const Localization fix = loc.Localize(blank);
   EXPECT_FALSE(fix.success);
   EXPECT_NE(fix.reason.find("no features"), std::string::npos);
   EXPECT_TRUE(loc.Query(blank, 5, true).empty());

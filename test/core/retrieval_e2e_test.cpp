@@ -9,21 +9,15 @@
 #include "ground_texture_bow/core/config.h"
 #include "ground_texture_bow/core/database.h"
 #include "ground_texture_bow/core/pose.h"
-#include "ground_texture_bow/core/synth/generator.h"
+#include "ground_texture_bow/eval/synth/generator.h"
+#include "test_scene.h"
 
 namespace gtbow {
 namespace {
 
 TEST(RetrievalEndToEnd, RevisitedPlacesFindTheRightDatabaseImage) {
-  synth::SynthOptions so;
-  so.area_width = 0.4;
-  so.area_height = 0.3;
-  so.train_images = 30;
-  so.queries_per_split = 0;
-  const synth::DatasetPlan plan = synth::PlanDataset(so);
-  const synth::Floor floor(so.surface, so.seed);
-  const synth::Camera camera(so.camera);
-  const ImageGeometry geo = so.camera.Geometry();
+  const synth::Scene scene = testing_util::SmallScene(0.4, 0.3, 30);
+  const ImageGeometry geo = scene.options().camera.Geometry();
 
   RetrievalConfig cfg;  // the paper's high-accuracy configuration, with a small vocabulary
   cfg.vocabulary.num_words = 2000;
@@ -33,8 +27,8 @@ TEST(RetrievalEndToEnd, RevisitedPlacesFindTheRightDatabaseImage) {
   std::vector<ImageFeatures> db_feats;
   std::vector<Pose2D> db_poses;
   std::vector<std::pair<Pose2D, ImageFeatures>> queries;
-  for (const auto& im : plan.images) {
-    const ImageFeatures f = fx.Extract(synth::RenderPlannedImage(floor, camera, so, im));
+  for (const auto& im : scene.plan().images) {
+    const ImageFeatures f = fx.Extract(scene.Render(im));
     if (im.split == "train") {
       train_desc.push_back(f.descriptors);
       image_of.insert(image_of.end(), f.size(), static_cast<uint32_t>(train_desc.size()));
@@ -50,7 +44,7 @@ TEST(RetrievalEndToEnd, RevisitedPlacesFindTheRightDatabaseImage) {
     im.pose = {db_poses[d].x + 0.004, db_poses[d].y - 0.003, db_poses[d].theta + 0.05};
     im.day = 30;
     im.visit = 100;
-    queries.emplace_back(im.pose, fx.Extract(synth::RenderPlannedImage(floor, camera, so, im)));
+    queries.emplace_back(im.pose, fx.Extract(scene.Render(im)));
   }
   cv::Mat desc;
   cv::vconcat(train_desc, desc);

@@ -1,6 +1,7 @@
-// The core must stay ROS-free, and the build must enforce it. These tests show that the
-// enforcement itself works: the scan rejects a ROS include, and the guard headers make one
-// fail to compile.
+// The engine, the evaluation kit and the gtbow tool must stay ROS-free, and the engine must not
+// use the evaluation kit; the build enforces both. These tests show that the enforcement itself
+// works: the scan rejects a ROS include (and, for the engine, a kit include), and the guard
+// headers make a ROS include fail to compile.
 #include <unistd.h>
 
 #include <cstdlib>
@@ -23,14 +24,23 @@ class RosFreeGuard : public ::testing::Test {
     fs::create_directories(dir_);
   }
   void TearDown() override { fs::remove_all(dir_); }
-  int Scan(const std::string& roots) {
-    return Shell(std::string(GTBOW_CMAKE_COMMAND) + " \"-DROOTS=" + roots + "\" -P " +
-                 GTBOW_CHECK_SCRIPT);
+  int Scan(const std::string& roots, bool engine = false) {
+    return Shell(std::string(GTBOW_CMAKE_COMMAND) + " \"-DROOTS=" + roots + "\" " +
+                 (engine ? "-DENGINE=ON " : "") + "-P " + GTBOW_CHECK_SCRIPT);
   }
   fs::path dir_;
 };
 
-TEST_F(RosFreeGuard, TheRealCorePassesTheScan) { EXPECT_EQ(Scan(GTBOW_CORE_ROOTS), 0); }
+TEST_F(RosFreeGuard, TheRealSourcesPassTheScan) {
+  EXPECT_EQ(Scan(GTBOW_CORE_ROOTS, true), 0);
+  EXPECT_EQ(Scan(GTBOW_EVAL_ROOTS), 0);
+}
+
+TEST_F(RosFreeGuard, TheEngineMayNotUseTheEvaluationKit) {
+  std::ofstream(dir_ / "engine.cpp") << "#include \"ground_texture_bow/eval/dataset.h\"\nint x;\n";
+  EXPECT_NE(Scan(dir_.string(), true), 0);
+  EXPECT_EQ(Scan(dir_.string(), false), 0);  // the kit and the tools may
+}
 
 TEST_F(RosFreeGuard, ScanRejectsRosIncludes) {
   for (const char* inc : {"#include <ros/ros.h>", "  #  include \"nodelet/nodelet.h\"",

@@ -10,10 +10,11 @@
 
 #include "fuzz_fixture.h"
 #include "ground_texture_bow/core/database.h"
-#include "ground_texture_bow/core/dataset.h"
+#include "ground_texture_bow/eval/dataset.h"
 #include "ground_texture_bow/core/features.h"
 #include "ground_texture_bow/core/file_util.h"
-#include "ground_texture_bow/core/synth/generator.h"
+#include "ground_texture_bow/eval/synth/generator.h"
+#include "../core/test_scene.h"
 
 namespace fs = std::filesystem;
 using namespace gtbow;
@@ -35,17 +36,10 @@ struct Images {
 };
 
 Images Render() {
-  synth::SynthOptions so;
-  so.area_width = 0.15;
-  so.area_height = 0.12;
-  so.train_images = 12;
-  so.queries_per_split = 0;
-  const synth::DatasetPlan plan = synth::PlanDataset(so);
-  const synth::Floor floor(so.surface, so.seed);
-  const synth::Camera camera(so.camera);
+  const synth::Scene scene = testing_util::SmallScene(0.15, 0.12, 12);
   Images out;
-  for (const auto& im : plan.images) {
-    cv::Mat img = synth::RenderPlannedImage(floor, camera, so, im);
+  for (const auto& im : scene.plan().images) {
+    cv::Mat img = scene.Render(im);
     if (im.split == "train") {
       out.train.push_back(img);
     } else if (out.map.size() < 4) {

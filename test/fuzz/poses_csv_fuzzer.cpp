@@ -8,7 +8,7 @@
 #include <string>
 
 #include "fuzz_util.h"
-#include "ground_texture_bow/core/dataset.h"
+#include "ground_texture_bow/eval/dataset.h"
 
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   using namespace gtbow;

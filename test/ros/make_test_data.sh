@@ -1,10 +1,12 @@
 #!/usr/bin/env bash
 # Generates the data the rostests replay: a small synthetic asphalt floor, a vocabulary trained
 # on its separate training area (and a second one), and bags (database with TF: a mapping run; day-30 queries
-# without TF: a robot that must localize globally). Usage: make_test_data.sh GTBOW OUT_DIR
+# without TF: a robot that must localize globally).
+# Usage: make_test_data.sh GTBOW GTBOW_IMAGES_TO_BAG OUT_DIR
 set -euo pipefail
 GTBOW="$1"
-OUT="$2"
+TO_BAG="$2"
+OUT="$3"
 rm -rf "$OUT.partial"
 mkdir -p "$OUT.partial"
 "$GTBOW" synth --out "$OUT.partial/floor" --area 0.4 0.3 --train 30 --queries 20 --days 0,30 -q
@@ -13,9 +15,9 @@ mkdir -p "$OUT.partial"
 # vocab.gtvoc must be refused by a nodelet that starts with this one.
 "$GTBOW" train-vocab --dataset "$OUT.partial/floor" --words 500 --seed 2 \
   --out "$OUT.partial/other_vocab.gtvoc" -q
-"$GTBOW" images-to-bag --dataset "$OUT.partial/floor" --split database \
+"$TO_BAG" --dataset "$OUT.partial/floor" --split database \
   --out "$OUT.partial/mapping.bag" -q > /dev/null
-"$GTBOW" images-to-bag --dataset "$OUT.partial/floor" --split query_day030 --no-tf \
+"$TO_BAG" --dataset "$OUT.partial/floor" --split query_day030 --no-tf \
   --out "$OUT.partial/localization.bag" -q > /dev/null
 rm -rf "$OUT"
 mv "$OUT.partial" "$OUT"

@@ -1,10 +1,11 @@
 // The retrieval configuration (features, vocabulary, BoW and index options) and its YAML form,
-// used by the presets in config/ (high_accuracy.yaml, fast.yaml, dbow_baseline.yaml) and by
-// the ROS layer, which copies parameters of the same names.
+// used by the presets in config/ (high_accuracy.yaml, fast.yaml, ...) and by the ROS layer
+// (~preset).
 #pragma once
 
 #include <filesystem>
 #include <string>
+#include <vector>
 
 #include "ground_texture_bow/core/bow.h"
 #include "ground_texture_bow/core/features.h"
@@ -26,8 +27,12 @@ struct RetrievalConfig {
 // std::runtime_error naming `source`, the line and the key.
 RetrievalConfig ParseRetrievalConfig(const std::string& yaml, const std::string& source);
 RetrievalConfig LoadRetrievalConfig(const std::filesystem::path& path);
-// The YAML form of a configuration (every key, so it documents the defaults).
+// The YAML form of a configuration: every key that shapes the answers (so it documents the
+// defaults; a map file records it and refuses to load under other options).
 std::string FormatRetrievalConfig(const RetrievalConfig& config);
+// Those keys, as "section.key", in the order written (one table in config.cpp drives the
+// parser, FormatRetrievalConfig and RetrievalConfigDifference).
+std::vector<std::string> RetrievalConfigKeys();
 // The `features` section alone (what Vocabulary::extractor() records).
 std::string FormatFeatureOptions(const FeatureOptions& features);
 // Throws std::invalid_argument naming `vocabulary_name` and the differing keys when the

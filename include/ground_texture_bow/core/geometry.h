@@ -1,5 +1,5 @@
 // Planar geometry of a downward camera over the floor: poses, footprints and overlap.
-// Frames follow shared/DATASET_FORMAT.md: the floor frame is the image frame of a camera with
+// Frames follow docs/DATASET_FORMAT.md: the floor frame is the image frame of a camera with
 // theta = 0, scaled to metres; u points right and v down in the image.
 #pragma once
 
@@ -56,5 +56,10 @@ bool IsRelevant(const Pose2D& query, const Pose2D& database, const ImageGeometry
 
 // Wraps an angle to (-pi, pi].
 double WrapAngle(double angle);
+
+// a * b: pose b, given in a's frame, in the frame a is given in (angles add, unwrapped).
+Pose2D Compose(const Pose2D& a, const Pose2D& b);
+// The inverse pose: Compose(p, Inverse(p)) is the identity.
+Pose2D Inverse(const Pose2D& p);
 
 }  // namespace gtbow

@@ -78,19 +78,6 @@ struct Candidate {
   std::vector<Vec2> inliers;  // query pixels of the verified matches (for overlays)
 };
 
-// A global pose fix: the query image's pose in the map, from the first posed candidate that
-// verifies.
-struct PoseFix {
-  bool success = false;
-  std::string reason;          // why there is no fix (empty on success)
-  Pose2D map_from_camera;      // metres, radians
-  std::array<double, 9> covariance{};  // row-major (x, y, theta): m^2, m rad, rad^2
-  uint32_t keyframe = 0;       // the keyframe that gave it
-  int inliers = 0;
-  float score = 0.0f;
-  std::vector<Vec2> inlier_pixels;  // query pixels of the inlier matches (for overlays)
-};
-
 class Localizer {
  public:
   // `vocabulary_path` is recorded in saved maps (the map refers to the vocabulary, it does not
@@ -122,8 +109,9 @@ class Localizer {
   std::vector<Candidate> QueryKeyframe(uint32_t id, size_t k, bool verify) const;
 
   // Global localization: verifies the top K candidates in rank order, skipping keyframes without
-  // a pose, until one gives a pose with enough inliers.
-  PoseFix Localize(const ProcessedImage& image) const;
+  // a pose, until one gives a pose with enough inliers (VerifyCandidates, as gtbow eval does).
+  // The fix is estimate.floor_from_query, in the map frame; image is the keyframe.
+  Localization Localize(const ProcessedImage& image) const;
 
   // Writes the map (vocabulary path and fingerprint, options, database, keyframes) atomically:
   // a failure leaves any existing file untouched. Throws std::runtime_error naming the path.

@@ -5,7 +5,7 @@
 // mapping is a 2-D rigid transform (the constant camera height fixes the scale), estimated by
 // weighted RANSAC -- samples drawn and hypotheses scored by the soft-assignment weights -- and
 // refined by least squares on the inliers. The query's floor pose then follows from the database
-// image's ground-truth pose (shared/DATASET_FORMAT.md).
+// image's ground-truth pose (docs/DATASET_FORMAT.md).
 #pragma once
 
 #include <array>
@@ -77,19 +77,26 @@ struct LocalizationOptions {
   void Check() const;
 };
 
+// The result of global localization, for the evaluation (gtbow eval) and the node
+// (Localizer::Localize) alike: the query's pose is estimate.floor_from_query (in the map, for
+// the node), with estimate.covariance and estimate.inliers.
 struct Localization {
   bool success = false;
   std::string reason;        // why no candidate gave a pose (empty on success)
-  uint32_t image = 0;        // the database image that gave the pose
+  uint32_t image = 0;        // the database image (keyframe) that gave the pose
   int rank = -1;             // its rank among the retrieved candidates (0 = first)
   float score = 0.0f;        // its retrieval score
   PoseEstimate estimate;
+  std::vector<Vec2> inlier_pixels;  // query pixels of the inlier matches (for overlays)
 };
 
-// Where the localizer finds a database image's keypoints and ground-truth pose.
+// Where the localizer finds a database image's keypoints and pose.
 struct MapAccess {
   std::function<const std::vector<Keypoint>&(uint32_t image)> keypoints;
   std::function<Pose2D(uint32_t image)> pose;
+  // Optional: why an image cannot give a pose ("no pose", "other image size"); empty when it
+  // can. Such candidates are skipped.
+  std::function<std::string(uint32_t image)> unusable;
 };
 
 // Verifies retrieved candidates (with their matches) in order until one gives a pose with

@@ -73,5 +73,7 @@ ground_texture_bow::Status MakeStatus(uint8_t code, const std::string& message);
 
 // Yaw (radians) of a quaternion's x axis projected on the x-y plane.
 double YawOf(double qx, double qy, double qz, double qw);
+// The rotation by `yaw` radians about z.
+geometry_msgs::Quaternion QuaternionFromYaw(double yaw);
 
 }  // namespace gtbow_ros

@@ -48,32 +48,41 @@ std::string ModeName(Mode mode);
 // Every parameter of config/localizer.yaml (names and meanings are documented there).
 struct ServerOptions {
   std::string vocabulary;              // vocabulary file (.gtvoc); or taken from `map`
-  std::string preset;                  // retrieval preset YAML (config/high_accuracy.yaml)
+  std::string preset;                  // retrieval preset YAML; empty: config/high_accuracy.yaml
   std::string map;                     // map file loaded at start (optional)
-  int threads = 2;                     // threads per image: descriptor assignment, query blocks
+  // The engine's options, checked by the engine (LocalizerOptions::Check): the retrieval
+  // options from the preset, and ~threads (threads per image: descriptor assignment, query
+  // blocks), ~meters_per_pixel, ~candidates (K retrieved and verified) and ~min_inliers.
+  gtbow::LocalizerOptions core = DefaultCore();
   Mode mode = Mode::kMapping;
   std::string map_frame = "map";
   std::string odom_frame = "odom";
   std::string camera_frame;            // overrides the image header's frame_id when set
   std::string transport = "raw";       // raw (image_transport) or compressed (<image>/compressed)
-  double meters_per_pixel = 0.00025;   // metres per pixel on the floor
   bool use_tf = true;                  // look up the camera pose in map_frame
   double tf_timeout = 0.05;            // seconds to wait for a transform
   double keyframe_min_distance = 0.05; // metres moved since the last keyframe
   double keyframe_min_angle = 0.35;    // radians turned since the last keyframe
   int keyframe_every_n = 10;           // without TF: every Nth processed image
-  int candidates = 5;                  // K, candidates retrieved and verified
-  int min_inliers = 6;                 // inliers a verified pose needs
   int exclude_recent = 20;             // newest keyframes not reported as loop closures
   bool publish_tf = false;             // publish map -> odom from fixes
   double localized_timeout = 2.0;      // seconds a fix counts as "localized" in diagnostics
   double planar_variance = 1e-9;       // variance on z, roll and pitch of ~pose
   double camera_height = 0.0;          // for markers only, metres
 
-  void Check() const;  // throws std::invalid_argument naming the bad parameter
+  // The node's defaults for the engine's options: 2 threads, 0.25 mm per pixel, K = 5,
+  // 6 inliers.
+  static gtbow::LocalizerOptions DefaultCore();
+  // Throws std::invalid_argument naming the bad parameter: the ROS-only ones here, the
+  // engine's through LocalizerOptions::Check.
+  void Check() const;
 };
 
-// Reads ServerOptions from the private node handle. Throws std::invalid_argument.
+// The preset a node uses when ~preset is empty or unset.
+std::string DefaultPreset();
+
+// Reads ServerOptions from the private node handle, the preset file included. Throws
+// std::invalid_argument (a bad parameter) or std::runtime_error (an unreadable preset).
 ServerOptions ReadOptions(const ros::NodeHandle& pnh);
 
 class LocalizerServer {
@@ -106,7 +115,7 @@ class LocalizerServer {
   std::optional<gtbow::Pose2D> LookupFootprint(const std::string& frame, const ros::Time& stamp,
                                                const std::string& target, bool warn);
   bool IsKeyframe(const std::optional<gtbow::Pose2D>& pose);
-  void PublishFix(const gtbow::PoseFix& fix, const std_msgs::Header& header);
+  void PublishFix(const gtbow::Localization& fix, const std_msgs::Header& header);
   void PublishLoopClosures(const std::vector<gtbow::Candidate>& cands, uint32_t query_id,
                            const std_msgs::Header& header);
   // The camera image with its keypoints (green) and the verified matches of the winning
@@ -128,17 +137,18 @@ class LocalizerServer {
   // Forgets the per-map bookkeeping (loop-closure edges, last keyframe pose).
   void ForgetMapState();
 
-  bool QueryCandidates(ground_texture_bow::QueryCandidates::Request& req,
-                       ground_texture_bow::QueryCandidates::Response& res);
-  bool AddKeyframe(ground_texture_bow::AddKeyframe::Request& req,
-                   ground_texture_bow::AddKeyframe::Response& res);
-  bool LocalizeSrv(ground_texture_bow::Localize::Request& req,
-                   ground_texture_bow::Localize::Response& res);
-  bool SaveMap(ground_texture_bow::SaveMap::Request& req, ground_texture_bow::SaveMap::Response& res);
-  bool LoadMap(ground_texture_bow::LoadMap::Request& req, ground_texture_bow::LoadMap::Response& res);
-  bool ResetSrv(ground_texture_bow::Reset::Request& req, ground_texture_bow::Reset::Response& res);
-  bool GetInfo(ground_texture_bow::GetInfo::Request& req, ground_texture_bow::GetInfo::Response& res);
-  bool SetMode(ground_texture_bow::SetMode::Request& req, ground_texture_bow::SetMode::Response& res);
+  // The service handlers: On<Service>, each one's body run through Serve.
+  bool OnQueryCandidates(ground_texture_bow::QueryCandidates::Request& req,
+                         ground_texture_bow::QueryCandidates::Response& res);
+  bool OnAddKeyframe(ground_texture_bow::AddKeyframe::Request& req,
+                     ground_texture_bow::AddKeyframe::Response& res);
+  bool OnLocalize(ground_texture_bow::Localize::Request& req,
+                  ground_texture_bow::Localize::Response& res);
+  bool OnSaveMap(ground_texture_bow::SaveMap::Request& req, ground_texture_bow::SaveMap::Response& res);
+  bool OnLoadMap(ground_texture_bow::LoadMap::Request& req, ground_texture_bow::LoadMap::Response& res);
+  bool OnReset(ground_texture_bow::Reset::Request& req, ground_texture_bow::Reset::Response& res);
+  bool OnGetInfo(ground_texture_bow::GetInfo::Request& req, ground_texture_bow::GetInfo::Response& res);
+  bool OnSetMode(ground_texture_bow::SetMode::Request& req, ground_texture_bow::SetMode::Response& res);
 
   ros::NodeHandle nh_, pnh_;
   ServerOptions options_;

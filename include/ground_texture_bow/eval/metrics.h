@@ -1,4 +1,4 @@
-// Retrieval metrics of the evaluation protocol (shared/DATASET_FORMAT.md, following the
+// Retrieval metrics of the evaluation protocol (docs/DATASET_FORMAT.md, following the
 // paper's §IV): AP@1000, Recall@N and score separation.
 #pragma once
 

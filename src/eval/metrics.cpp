@@ -1,4 +1,4 @@
-#include "ground_texture_bow/core/metrics.h"
+#include "ground_texture_bow/eval/metrics.h"
 
 #include <algorithm>
 #include <cmath>

@@ -1,4 +1,4 @@
-// Reading and writing ground-texture datasets (shared/DATASET_FORMAT.md, version 1).
+// Reading and writing ground-texture datasets (docs/DATASET_FORMAT.md, version 1).
 // Readers tolerate what the format allows (extra columns and keys, comment and blank lines,
 // colour images) and reject what it forbids with std::runtime_error naming file and line.
 #pragma once

@@ -1,4 +1,4 @@
-// Synthetic ground-texture datasets with exact ground truth (shared/DATASET_FORMAT.md):
+// Synthetic ground-texture datasets with exact ground truth (docs/DATASET_FORMAT.md):
 // a training area kept apart from the map, a lawnmower-path database, and query splits
 // recorded on later days while the floor ages.
 #pragma once
@@ -9,9 +9,9 @@
 #include <string>
 #include <vector>
 
-#include "ground_texture_bow/core/dataset.h"
-#include "ground_texture_bow/core/synth/camera.h"
-#include "ground_texture_bow/core/synth/floor.h"
+#include "ground_texture_bow/eval/dataset.h"
+#include "ground_texture_bow/eval/synth/camera.h"
+#include "ground_texture_bow/eval/synth/floor.h"
 
 namespace gtbow {
 namespace synth {
@@ -89,6 +89,23 @@ Lighting VisitLighting(uint64_t seed, uint64_t visit);
 // Renders one planned image.
 cv::Mat RenderPlannedImage(const Floor& floor, const Camera& camera, const SynthOptions& options,
                            const PlannedImage& image);
+
+// A synthetic floor ready to render in memory (tests, examples): the options, the plan, the
+// floor and the camera. Not for photo floors (those need LoadPhotoFloor).
+class Scene {
+ public:
+  explicit Scene(const SynthOptions& options);
+  const SynthOptions& options() const { return options_; }
+  const DatasetPlan& plan() const { return plan_; }
+  // Any image, planned or not (another pose, day or visit of the same floor).
+  cv::Mat Render(const PlannedImage& image) const;
+
+ private:
+  SynthOptions options_;
+  DatasetPlan plan_;
+  Floor floor_;
+  Camera camera_;
+};
 
 struct SynthSummary {
   std::map<std::string, size_t> split_sizes;

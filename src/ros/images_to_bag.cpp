@@ -1,4 +1,4 @@
-// gtbow images-to-bag: any dataset (shared/DATASET_FORMAT.md) as a rosbag a robot would have
+// gtbow_images_to_bag: any dataset (docs/DATASET_FORMAT.md) as a rosbag a robot would have
 // recorded: the images of one split on a camera topic, in sequence order, and the camera's
 // ground-truth pose as TF (map -> camera optical frame) and as a PoseStamped topic.
 //
@@ -7,6 +7,7 @@
 // the map, has z up): images are stored flipped upside down. The localizer flips them back
 // (ros/conversions.h), and its fixes are then in the dataset's floor frame.
 #include <cmath>
+#include <cstdio>
 #include <filesystem>
 #include <memory>
 #include <string>
@@ -18,8 +19,9 @@
 #include <sensor_msgs/image_encodings.h>
 #include <tf2_msgs/TFMessage.h>
 
-#include "commands.h"
-#include "ground_texture_bow/core/dataset.h"
+#include <CLI/CLI.hpp>
+
+#include "ground_texture_bow/eval/dataset.h"
 #include "ground_texture_bow/core/file_util.h"
 #include "ground_texture_bow/core/progress.h"
 #include "ground_texture_bow/ros/conversions.h"
@@ -27,7 +29,6 @@
 namespace fs = std::filesystem;
 
 namespace gtbow {
-namespace tools {
 namespace {
 
 struct BagArgs {
@@ -111,8 +112,7 @@ void RunImagesToBag(const BagArgs& a) {
         truth.header.frame_id = a.map_frame;
         truth.pose.position.x = pose.x;
         truth.pose.position.y = pose.y;
-        truth.pose.orientation.z = std::sin(0.5 * pose.theta);
-        truth.pose.orientation.w = std::cos(0.5 * pose.theta);
+        truth.pose.orientation = gtbow_ros::QuaternionFromYaw(pose.theta);
         bag.write(a.truth_topic, stamp, truth);
         bag.write(a.topic, stamp, img);
         bar.Add();
@@ -136,12 +136,15 @@ void RunImagesToBag(const BagArgs& a) {
 }
 
 }  // namespace
+}  // namespace gtbow
 
-void RegisterImagesToBag(CLI::App& app) {
+int main(int argc, char** argv) {
+  using gtbow::BagArgs;
   auto a = std::make_shared<BagArgs>();
-  CLI::App* cmd = app.add_subcommand(
-      "images-to-bag", "Write a dataset split as a rosbag of camera images plus ground-truth TF");
-  cmd->add_option("--dataset", a->dataset, "Dataset (shared/DATASET_FORMAT.md)")->required();
+  CLI::App app{"gtbow_images_to_bag: write a dataset split as a rosbag of camera images plus "
+               "ground-truth TF (the ROS part of the gtbow tools)"};
+  CLI::App* cmd = &app;
+  cmd->add_option("--dataset", a->dataset, "Dataset (docs/DATASET_FORMAT.md)")->required();
   cmd->add_option("-o,--out", a->out, "Output bag file")->required();
   cmd->add_option("--split", a->split, "Split to write, in sequence order")->capture_default_str();
   cmd->add_option("--topic", a->topic, "Image topic")->capture_default_str();
@@ -158,8 +161,14 @@ void RegisterImagesToBag(CLI::App& app) {
   cmd->add_option("--max-images", a->max_images, "Write at most this many images (0 = all)");
   cmd->add_flag("--no-tf", a->no_tf, "Omit /tf (a robot that must localize globally)");
   cmd->add_flag("-q,--quiet", a->quiet, "No progress bar");
-  cmd->callback([a]() { RunImagesToBag(*a); });
+  try {
+    app.parse(argc, argv);
+    gtbow::RunImagesToBag(*a);
+  } catch (const CLI::ParseError& e) {
+    return app.exit(e);
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "gtbow_images_to_bag: error: %s\n", e.what());
+    return 2;
+  }
+  return 0;
 }
-
-}  // namespace tools
-}  // namespace gtbow

@@ -9,7 +9,7 @@
 #include <opencv2/core.hpp>
 
 #include "ground_texture_bow/core/geometry.h"
-#include "ground_texture_bow/core/synth/floor.h"
+#include "ground_texture_bow/eval/synth/floor.h"
 
 namespace gtbow {
 namespace synth {

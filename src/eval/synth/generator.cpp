@@ -1,4 +1,4 @@
-#include "ground_texture_bow/core/synth/generator.h"
+#include "ground_texture_bow/eval/synth/generator.h"
 
 #include <algorithm>
 #include <atomic>
@@ -17,6 +17,7 @@
 
 #include "ground_texture_bow/core/binary_io.h"
 #include "ground_texture_bow/core/file_util.h"
+#include "ground_texture_bow/core/parallel.h"
 #include "ground_texture_bow/core/progress.h"
 #include "noise.h"
 
@@ -457,6 +458,20 @@ cv::Mat RenderPlannedImage(const Floor& floor, const Camera& camera, const Synth
   return camera.Capture(floor, im.pose, state, VisitLighting(o.seed, im.visit), shot);
 }
 
+Scene::Scene(const SynthOptions& options)
+    : options_(options),
+      plan_(PlanDataset(options)),
+      floor_(options.surface, options.seed),
+      camera_(options.camera) {
+  if (!options.photos.empty()) {
+    throw std::invalid_argument("synth::Scene renders synthetic surfaces, not photo floors");
+  }
+}
+
+cv::Mat Scene::Render(const PlannedImage& image) const {
+  return RenderPlannedImage(floor_, camera_, options_, image);
+}
+
 SynthSummary GenerateDataset(const SynthOptions& o, const fs::path& out, bool force,
                              bool progress) {
   const auto start = std::chrono::steady_clock::now();
@@ -469,44 +484,28 @@ SynthSummary GenerateDataset(const SynthOptions& o, const fs::path& out, bool fo
   SynthSummary summary;
   try {
     fs::create_directories(staging / "images");
-    const int threads = o.threads > 0 ? o.threads
-                                      : static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
-    std::atomic<size_t> next{0};
-    std::atomic<bool> failed{false};
-    std::string error;
-    std::mutex error_mutex;
     ProgressBar bar("synth", plan.images.size(), progress);
-    auto worker = [&]() {
-      // Noisy texture barely compresses beyond entropy coding: Huffman-only is as small and fast.
-      const std::vector<int> png = {cv::IMWRITE_PNG_COMPRESSION, 1, cv::IMWRITE_PNG_STRATEGY,
-                                    cv::IMWRITE_PNG_STRATEGY_HUFFMAN_ONLY};
-      while (!failed) {
-        const size_t i = next.fetch_add(1);
-        if (i >= plan.images.size()) return;
-        try {
-          const cv::Mat img = RenderPlannedImage(floor, camera, o, plan.images[i]);
-          const fs::path path = staging / "images" / plan.images[i].name;
-          if (!cv::imwrite(path.string(), img, png)) {
-            throw std::runtime_error("cannot write image " + path.string());
-          }
-        } catch (const std::exception& e) {
-          std::lock_guard<std::mutex> lock(error_mutex);
-          if (!failed) error = e.what();
-          failed = true;
-          return;
-        }
-        bar.Add();
-      }
-    };
+    // Noisy texture barely compresses beyond entropy coding: Huffman-only is as small and fast.
+    const std::vector<int> png = {cv::IMWRITE_PNG_COMPRESSION, 1, cv::IMWRITE_PNG_STRATEGY,
+                                  cv::IMWRITE_PNG_STRATEGY_HUFFMAN_ONLY};
     // Parallelism is across images: OpenCV's own threads would only oversubscribe the cores.
     const int cv_threads = cv::getNumThreads();
     cv::setNumThreads(1);
-    std::vector<std::thread> pool;
-    for (int t = 0; t < threads; ++t) pool.emplace_back(worker);
-    for (auto& t : pool) t.join();
+    try {
+      ParallelForEach(plan.images.size(), o.threads, [&](size_t i) {
+        const cv::Mat img = RenderPlannedImage(floor, camera, o, plan.images[i]);
+        const fs::path path = staging / "images" / plan.images[i].name;
+        if (!cv::imwrite(path.string(), img, png)) {
+          throw std::runtime_error("cannot write image " + path.string());
+        }
+        bar.Add();
+      });
+    } catch (...) {
+      cv::setNumThreads(cv_threads);
+      throw;
+    }
     cv::setNumThreads(cv_threads);
     bar.Finish();
-    if (failed) throw std::runtime_error(error);
 
     std::vector<PoseRecord> poses;
     poses.reserve(plan.images.size());

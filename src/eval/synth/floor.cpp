@@ -1,4 +1,10 @@
-#include "ground_texture_bow/core/synth/floor.h"
+// The procedural floor: the view (pixels <-> floor millimetres), shapes (stones, flecks, pits,
+// scratches), the canvas with its depth buffer, the low-frequency fields, and the surfaces
+// built from them. One file of about 1,200 lines on purpose: its inner loops share file-local
+// inline helpers, and this file alone is compiled with -O3 and without math errno/traps
+// (CMakeLists.txt) so that they vectorise; byte-identical images across machines depend on
+// those flags applying to all of it.
+#include "ground_texture_bow/eval/synth/floor.h"
 
 #include <algorithm>
 #include <cmath>
@@ -8,6 +14,7 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "ground_texture_bow/core/enum_names.h"
 #include "noise.h"
 
 namespace gtbow {
@@ -998,35 +1005,24 @@ void ShadeRelief(const View& v, const float* height, const FloorState& st, float
 
 }  // namespace
 
-Surface ParseSurface(const std::string& name) {
-  if (name == "asphalt") return Surface::kAsphalt;
-  if (name == "concrete") return Surface::kConcrete;
-  if (name == "carpet") return Surface::kCarpet;
-  if (name == "laminate") return Surface::kLaminate;
-  if (name == "smooth_concrete") return Surface::kSmoothConcrete;
-  if (name == "epoxy") return Surface::kEpoxy;
-  if (name == "flat") return Surface::kFlat;
-  std::string valid;
-  for (const auto& n : SurfaceNames()) valid += (valid.empty() ? "" : ", ") + n;
-  throw std::invalid_argument("unknown surface '" + name + "' (valid: " + valid + ")");
-}
+namespace {
+// The surfaces a dataset can be rendered from by name (a photo floor is made from photographs).
+constexpr EnumName<Surface> kSurfaces[] = {
+    {"asphalt", Surface::kAsphalt}, {"concrete", Surface::kConcrete}, {"carpet", Surface::kCarpet},
+    {"laminate", Surface::kLaminate}, {"smooth_concrete", Surface::kSmoothConcrete},
+    {"epoxy", Surface::kEpoxy}, {"flat", Surface::kFlat}};
+}  // namespace
+
+Surface ParseSurface(const std::string& name) { return ParseEnumName(name, "surface", kSurfaces); }
 
 std::string SurfaceName(Surface surface) {
-  switch (surface) {
-    case Surface::kAsphalt: return "asphalt";
-    case Surface::kConcrete: return "concrete";
-    case Surface::kCarpet: return "carpet";
-    case Surface::kLaminate: return "laminate";
-    case Surface::kSmoothConcrete: return "smooth_concrete";
-    case Surface::kEpoxy: return "epoxy";
-    case Surface::kFlat: return "flat";
-    case Surface::kPhoto: return "photo";
-  }
-  return "unknown";
+  return surface == Surface::kPhoto ? "photo" : EnumValueName(surface, kSurfaces);
 }
 
 std::vector<std::string> SurfaceNames() {
-  return {"asphalt", "concrete", "carpet", "laminate", "smooth_concrete", "epoxy", "flat"};
+  std::vector<std::string> out;
+  for (const auto& s : kSurfaces) out.push_back(s.name);
+  return out;
 }
 
 Floor::Floor(Surface surface, uint64_t seed)

@@ -1,4 +1,4 @@
-#include "ground_texture_bow/core/dataset.h"
+#include "ground_texture_bow/eval/dataset.h"
 
 #include <yaml-cpp/yaml.h>
 

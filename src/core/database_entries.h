@@ -1,0 +1,170 @@
+// Internal to the engine's inverted index (src/core/database*.cpp): the posting entries (compact
+// 6-byte and precise 8-byte encodings), the rows that hold them, and the file constants.
+#pragma once
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <memory>
+#include <vector>
+
+#include "ground_texture_bow/core/bow.h"
+#include "ground_texture_bow/core/database.h"
+
+namespace gtbow {
+namespace database_internal {
+
+inline constexpr char kDatabaseMagic[8] = {'G', 'T', 'B', 'W', 'D', 'B', '\0', '\0'};
+// 2: packed 8-byte entries in a framed file. 3: compact or precise entries, a header with its
+// own checksum, entries at an aligned offset for memory mapping, a checksum per 64 MB chunk.
+inline constexpr uint32_t kDatabaseVersion = 3;
+inline constexpr size_t kFixedHeader = 32;           // magic, version, entry size, two sizes
+inline constexpr size_t kEntriesAlignment = 64;
+inline constexpr size_t kChecksumChunk = size_t{64} << 20;
+inline constexpr float kTwoPi = static_cast<float>(2.0 * M_PI);
+// Accumulator bytes per query block: about a quarter of this machine's per-core L2.
+inline constexpr size_t kBlockBytes = size_t{1} << 20;
+
+// Orientation stored in 8 bits: 256 steps per turn (1.4 degrees).
+inline uint8_t QuantizeAngle(float a) {
+  int q = static_cast<int>(std::lround(a / kTwoPi * 256.0f));
+  return static_cast<uint8_t>(q & 255);
+}
+
+// Compact weights: code c stands for 2^(-c / 16), so 255 codes cover 2^-16 .. 1 with at most
+// 2.2% relative error. Weights d_w * c_d lie in (0, 1] (normalised vectors, shares summing to 1).
+inline constexpr float kLogStepsPerOctave = 16.0f;
+
+struct LogWeightTable {
+  float w[256];
+  LogWeightTable() {
+    for (int c = 0; c < 256; ++c) w[c] = std::exp2(-static_cast<float>(c) / kLogStepsPerOctave);
+  }
+};
+inline const LogWeightTable kLogWeights;
+
+}  // namespace database_internal
+
+namespace detail {
+
+using namespace database_internal;
+
+// 6 bytes: image id << 8 | orientation (32 bits), keypoint id (8 bits), log weight (8 bits).
+// Bytes, not fields: entries may sit at any address (a mapped file, an embedded blob).
+struct CompactEntry {
+  unsigned char b[6];
+  static constexpr uint32_t kMaxKeypoints = 256;
+  static CompactEntry Make(uint32_t image, uint8_t angle, uint32_t keypoint, float weight) {
+    CompactEntry e;
+    const uint32_t ia = image << 8 | angle;
+    std::memcpy(e.b, &ia, 4);
+    e.b[4] = static_cast<unsigned char>(keypoint);
+    const float w = std::clamp(weight, 0.0f, 1.0f);
+    const float c = w > 0.0f ? std::round(-std::log2(w) * kLogStepsPerOctave) : 255.0f;
+    e.b[5] = static_cast<unsigned char>(std::clamp(c, 0.0f, 255.0f));
+    return e;
+  }
+  uint32_t image() const {
+    uint32_t v;
+    std::memcpy(&v, b, 4);
+    return v >> 8;
+  }
+  uint8_t angle() const { return b[0]; }
+  uint16_t keypoint() const { return b[4]; }
+  float weight() const { return kLogWeights.w[b[5]]; }
+};
+static_assert(sizeof(CompactEntry) == 6, "compact entries are 6 bytes");
+
+// 8 bytes: image id << 8 | orientation (32 bits), keypoint id (16 bits), weight (16 bits, linear).
+struct PreciseEntry {
+  unsigned char b[8];
+  static constexpr uint32_t kMaxKeypoints = 65536;
+  static constexpr float kScale = 65535.0f;
+  static PreciseEntry Make(uint32_t image, uint8_t angle, uint32_t keypoint, float weight) {
+    PreciseEntry e;
+    const uint32_t ia = image << 8 | angle;
+    const uint16_t k = static_cast<uint16_t>(keypoint);
+    // A present keypoint never weighs nothing.
+    const long q = std::max(1L, std::lround(std::clamp(weight, 0.0f, 1.0f) * kScale));
+    const uint16_t w = static_cast<uint16_t>(q);
+    std::memcpy(e.b, &ia, 4);
+    std::memcpy(e.b + 4, &k, 2);
+    std::memcpy(e.b + 6, &w, 2);
+    return e;
+  }
+  uint32_t image() const {
+    uint32_t v;
+    std::memcpy(&v, b, 4);
+    return v >> 8;
+  }
+  uint8_t angle() const { return b[0]; }
+  uint16_t keypoint() const {
+    uint16_t k;
+    std::memcpy(&k, b + 4, 2);
+    return k;
+  }
+  float weight() const {
+    uint16_t w;
+    std::memcpy(&w, b + 6, 2);
+    return static_cast<float>(w) * (1.0f / kScale);
+  }
+};
+static_assert(sizeof(PreciseEntry) == 8, "precise entries are 8 bytes");
+
+// Rows of entries: a read-only base segment (loaded) followed by a growable tail (added).
+template <class E>
+struct PostingIndex {
+  struct Row {
+    const E* base = nullptr;
+    size_t base_count = 0;
+    std::vector<E> tail;
+  };
+  explicit PostingIndex(uint32_t num_rows) : rows(num_rows) {}
+  std::vector<Row> rows;
+  std::shared_ptr<const void> keep_alive;  // owns the base segments (mapping or block)
+  size_t base_bytes = 0;
+
+  size_t Entries() const {
+    size_t n = 0;
+    for (const Row& r : rows) n += r.base_count + r.tail.size();
+    return n;
+  }
+  size_t Bytes() const {
+    size_t n = rows.capacity() * sizeof(Row) + base_bytes;
+    for (const Row& r : rows) n += r.tail.capacity() * sizeof(E);
+    return n;
+  }
+  // Calls f(pointer, count) for the row's base segment and its tail, in order.
+  template <class F>
+  void ForEachSegment(uint32_t row, F&& f) const {
+    const Row& r = rows[row];
+    if (r.base_count > 0) f(r.base, r.base_count);
+    if (!r.tail.empty()) f(r.tail.data(), r.tail.size());
+  }
+};
+
+}  // namespace detail
+
+namespace database_internal {
+
+using detail::CompactEntry;
+using detail::PostingIndex;
+using detail::PreciseEntry;
+
+// Appends image `id`'s entries to the rows' tails.
+template <class E>
+void AddToIndex(PostingIndex<E>* index, const BowVector& v, uint32_t id) {
+  size_t k = 0;
+  for (const BowEntry& e : v.entries) {
+    auto& tail = index->rows[e.row].tail;
+    while (k < v.keypoints.size() && v.keypoints[k].row < e.row) ++k;
+    while (k < v.keypoints.size() && v.keypoints[k].row == e.row) {
+      const KeypointEntry& ke = v.keypoints[k++];
+      tail.push_back(E::Make(id, QuantizeAngle(v.angles[ke.keypoint]), ke.keypoint,
+                             e.weight * ke.contribution));
+    }
+  }
+}
+
+}  // namespace database_internal
+}  // namespace gtbow

@@ -1,0 +1,269 @@
+// The inverted index's query engine: votes accumulated block by block over image ids (a
+// block's accumulator fits in the core's cache), with orientation verification, on one or more
+// threads; the top N kept in a heap. Results are identical for any thread count.
+#include "ground_texture_bow/core/database.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <mutex>
+#include <stdexcept>
+#include <type_traits>
+
+#include "ground_texture_bow/core/binary_io.h"
+#include "ground_texture_bow/core/file_util.h"
+#include "ground_texture_bow/core/parallel.h"
+#include "database_entries.h"
+
+namespace gtbow {
+namespace {
+
+using namespace database_internal;
+
+// Per-thread scratch for queries: an accumulator over one block of images x bins.
+struct Scratch {
+  std::vector<float> acc;
+  std::vector<uint32_t> touched;  // images of the block (relative ids) with votes
+  std::vector<uint8_t> seen;
+};
+
+Scratch& ThreadScratch() {
+  thread_local Scratch s;
+  return s;
+}
+
+struct Candidate {
+  float score;
+  uint32_t image;
+  int bin;
+};
+
+// Best first: higher score, then lower image id (a strict total order, so results do not
+// depend on how the blocks were split among threads).
+inline bool Better(const Candidate& a, const Candidate& b) {
+  return a.score != b.score ? a.score > b.score : a.image < b.image;
+}
+
+// The `top_n` best candidates seen so far; the heap's front is the worst of them.
+class TopN {
+ public:
+  explicit TopN(size_t n) : n_(n) { heap_.reserve(std::min<size_t>(n, 1 << 16)); }
+  void Offer(const Candidate& c) {
+    if (heap_.size() < n_) {
+      heap_.push_back(c);
+      std::push_heap(heap_.begin(), heap_.end(), Better);
+    } else if (n_ > 0 && Better(c, heap_.front())) {
+      std::pop_heap(heap_.begin(), heap_.end(), Better);
+      heap_.back() = c;
+      std::push_heap(heap_.begin(), heap_.end(), Better);
+    }
+  }
+  std::vector<Candidate>& items() { return heap_; }
+
+ private:
+  size_t n_;
+  std::vector<Candidate> heap_;
+};
+
+// The query's side of one row segment.
+template <class E>
+struct Segment {
+  const E* begin;
+  const E* end;
+  uint32_t kb, ke;  // the query keypoint entries on this row
+  float wq;         // the query's weight on this row
+};
+
+inline const char* Bytes(const void* p) { return static_cast<const char*>(p); }
+
+struct QueryPlan {
+  int bins;
+  bool ov;
+  bool l1;
+  uint32_t n_images;
+  uint32_t block;
+  const std::vector<uint8_t>* removed;
+  std::vector<float> qwc;     // per query keypoint entry: q_w * c_q
+  std::vector<uint8_t> qang;  // per query keypoint entry: its quantised angle
+  uint8_t bin_of[256];        // orientation bin of an angle difference
+};
+
+// Votes of blocks [b0, b1) into `top`.
+template <class E>
+void ScoreBlocks(const std::vector<Segment<E>>& segs, const QueryPlan& p, uint32_t b0, uint32_t b1,
+                 TopN* top) {
+  Scratch& s = ThreadScratch();
+  const size_t acc_size = static_cast<size_t>(p.block) * p.bins;
+  if (s.acc.size() < acc_size) s.acc.assign(acc_size, 0.0f);
+  if (s.seen.size() < p.block) s.seen.assign(p.block, 0);
+  s.touched.clear();
+  const std::vector<uint8_t>& removed = *p.removed;
+  const uint32_t first = b0 * p.block;
+  std::vector<const E*> cur(segs.size());
+  for (size_t j = 0; j < segs.size(); ++j) {
+    cur[j] = std::lower_bound(segs[j].begin, segs[j].end, first,
+                              [](const E& x, uint32_t img) { return x.image() < img; });
+  }
+  float* acc = s.acc.data();
+  uint8_t* seen = s.seen.data();
+  for (uint32_t b = b0; b < b1; ++b) {
+    const uint32_t img0 = b * p.block;
+    const uint32_t blen = std::min(p.n_images - img0, p.block);
+    auto touch = [&](uint32_t rel) {
+      if (!seen[rel]) {
+        seen[rel] = 1;
+        s.touched.push_back(rel);
+      }
+    };
+    for (size_t j = 0; j < segs.size(); ++j) {
+      const Segment<E>& g = segs[j];
+      const E* x = cur[j];
+      // Entries past the block end the scan; ids are in order within a segment (an id below
+      // the block, possible only in a damaged file, also ends it: the scan stays in bounds).
+      if (p.l1) {
+        // DBoW2's L1 score needs each posting's d_w: the sum of its entries' weights.
+        while (x < g.end) {
+          const uint32_t img = x->image();
+          const uint32_t rel = img - img0;
+          if (rel >= blen) break;
+          float w = 0.0f;
+          for (; x < g.end && x->image() == img; ++x) w += x->weight();
+          if (removed[img]) continue;
+          touch(rel);
+          acc[rel] += std::min(g.wq, w);
+        }
+      } else if (!p.ov) {
+        for (; x < g.end; ++x) {
+          const uint32_t img = x->image();
+          const uint32_t rel = img - img0;
+          if (rel >= blen) break;
+          if (removed[img]) continue;
+          touch(rel);
+          acc[rel] += g.wq * x->weight();
+        }
+      } else {
+        for (; x < g.end; ++x) {
+          const uint32_t img = x->image();
+          const uint32_t rel = img - img0;
+          if (rel >= blen) break;
+          if (removed[img]) continue;
+          touch(rel);
+          float* a = acc + static_cast<size_t>(rel) * p.bins;
+          const uint8_t ang = x->angle();
+          const float w = x->weight();
+          for (uint32_t i = g.kb; i < g.ke; ++i) {
+            a[p.bin_of[static_cast<uint8_t>(ang - p.qang[i])]] += p.qwc[i] * w;
+          }
+        }
+      }
+      cur[j] = x;
+    }
+    // Scores: the best bin of each touched image.
+    for (uint32_t rel : s.touched) {
+      float* a = acc + static_cast<size_t>(rel) * p.bins;
+      int best = 0;
+      for (int k = 1; k < p.bins; ++k) best = a[k] > a[best] ? k : best;
+      top->Offer({a[best], img0 + rel, p.ov ? best : -1});
+      std::fill(a, a + p.bins, 0.0f);
+      seen[rel] = 0;
+    }
+    s.touched.clear();
+  }
+}
+
+template <class E>
+std::vector<QueryResult> QueryIndex(const PostingIndex<E>& index, uint32_t num_rows,
+                                    const BowOptions& options, const std::vector<uint8_t>& removed,
+                                    int threads, const BowVector& q, size_t top_n,
+                                    bool with_matches) {
+  QueryPlan p;
+  p.ov = options.orientation_verification;
+  p.bins = p.ov ? options.orientation_bins : 1;
+  p.l1 = options.scoring == Scoring::kDbowL1;
+  p.n_images = static_cast<uint32_t>(removed.size());
+  p.removed = &removed;
+  uint32_t block = 4096;
+  while (static_cast<size_t>(block) * 2 * p.bins * sizeof(float) <= kBlockBytes) block *= 2;
+  p.block = block;
+  for (int d = 0; d < 256; ++d) p.bin_of[d] = static_cast<uint8_t>(d * p.bins / 256);
+  std::vector<uint8_t> qa(q.angles.size());
+  for (size_t i = 0; i < qa.size(); ++i) qa[i] = QuantizeAngle(q.angles[i]);
+  p.qwc.resize(q.keypoints.size());
+  p.qang.resize(q.keypoints.size());
+  for (size_t i = 0; i < q.keypoints.size(); ++i) {
+    const uint16_t kp = q.keypoints[i].keypoint;
+    p.qang[i] = kp < qa.size() ? qa[kp] : 0;
+  }
+
+  // The rows the query shares with the index, as segments.
+  std::vector<Segment<E>> segs;
+  segs.reserve(q.entries.size() * 2);
+  size_t k = 0;
+  for (const BowEntry& e : q.entries) {
+    if (e.row >= num_rows) continue;
+    while (k < q.keypoints.size() && q.keypoints[k].row < e.row) ++k;
+    const size_t kb = k;
+    while (k < q.keypoints.size() && q.keypoints[k].row == e.row) ++k;
+    for (size_t i = kb; i < k; ++i) p.qwc[i] = e.weight * q.keypoints[i].contribution;
+    index.ForEachSegment(e.row, [&](const E* data, size_t count) {
+      segs.push_back({data, data + count, static_cast<uint32_t>(kb), static_cast<uint32_t>(k), e.weight});
+    });
+  }
+
+  const uint32_t n_blocks = (p.n_images + p.block - 1) / p.block;
+  const uint32_t n_threads = std::max<uint32_t>(1, std::min<uint32_t>(threads, n_blocks));
+  std::vector<TopN> tops(n_threads, TopN(top_n));
+  RunTasks(static_cast<int>(n_threads), [&](int t) {
+    const uint32_t u = static_cast<uint32_t>(t);
+    ScoreBlocks(segs, p, n_blocks * u / n_threads, n_blocks * (u + 1) / n_threads, &tops[u]);
+  });
+  std::vector<Candidate> all;
+  for (TopN& t : tops) all.insert(all.end(), t.items().begin(), t.items().end());
+  std::sort(all.begin(), all.end(), Better);
+  if (all.size() > top_n) all.resize(top_n);
+  std::vector<QueryResult> results(all.size());
+  for (size_t i = 0; i < all.size(); ++i) {
+    results[i].image = all[i].image;
+    results[i].score = all[i].score;
+    results[i].orientation_bin = all[i].bin;
+  }
+  if (!with_matches || results.empty()) return results;
+
+  // Second pass, restricted to the results: the keypoint pairs of each winning bin. Each
+  // segment is searched for the results' images (ids are in order within a segment).
+  std::vector<uint32_t> by_image(results.size());
+  for (size_t i = 0; i < by_image.size(); ++i) by_image[i] = static_cast<uint32_t>(i);
+  std::sort(by_image.begin(), by_image.end(),
+            [&](uint32_t a, uint32_t b) { return results[a].image < results[b].image; });
+  for (const Segment<E>& g : segs) {
+    const E* x = g.begin;
+    for (uint32_t ri : by_image) {
+      QueryResult& r = results[ri];
+      x = std::lower_bound(x, g.end, r.image,
+                           [](const E& y, uint32_t img) { return y.image() < img; });
+      for (const E* y = x; y < g.end && y->image() == r.image; ++y) {
+        const float w = g.wq * y->weight();
+        for (uint32_t i = g.kb; i < g.ke; ++i) {
+          if (p.ov && p.bin_of[static_cast<uint8_t>(y->angle() - p.qang[i])] != r.orientation_bin) {
+            continue;
+          }
+          r.matches.push_back({q.keypoints[i].keypoint, y->keypoint(), w * q.keypoints[i].contribution});
+        }
+      }
+    }
+  }
+  return results;
+}
+
+}  // namespace
+
+std::vector<QueryResult> BowDatabase::Query(const BowVector& q, size_t top_n,
+                                            bool with_matches) const {
+  std::shared_lock<std::shared_mutex> lock(mutex_);
+  if (compact_) {
+    return QueryIndex(*compact_, num_rows_, options_, removed_, query_threads_, q, top_n, with_matches);
+  }
+  return QueryIndex(*precise_, num_rows_, options_, removed_, query_threads_, q, top_n, with_matches);
+}
+
+}  // namespace gtbow

@@ -1,0 +1,168 @@
+// Internal to the engine's vocabularies (src/core/vocabulary*.cpp, float_ivf.*): descriptor
+// spaces, k-means pieces shared by AKM and HKM, and the two kinds' trainers and file readers.
+#pragma once
+
+// FLANN 1.9 headers are not self-contained: this order compiles. (flann::Index<> itself is not
+// used: it instantiates the LSH index, whose serialisation does not compile.)
+#include <flann/general.h>
+#include <flann/util/random.h>
+#include <flann/algorithms/dist.h>
+#include <flann/algorithms/center_chooser.h>
+#include <flann/algorithms/hierarchical_clustering_index.h>
+#include <flann/algorithms/kdtree_index.h>
+
+#include <algorithm>
+#include <atomic>
+#include <cmath>
+#include <limits>
+#include <mutex>
+#include <numeric>
+#include <random>
+#include <stdexcept>
+#include <thread>
+#include <memory>
+#include <vector>
+
+#include <opencv2/core.hpp>
+
+#include "ground_texture_bow/core/binary_io.h"
+#include "ground_texture_bow/core/vocabulary.h"
+#include "hamming_distance.h"
+
+namespace gtbow {
+namespace vocabulary_internal {
+
+// FLANN's randomisation uses the C library's global generator: serialise index builds so that
+// a seed gives the same trees whatever else runs.
+inline std::mutex& FlannSeedMutex() {
+  static std::mutex m;
+  return m;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Descriptor spaces: how to compare and average descriptors.
+
+// Float vectors under L2 (SIFT, or ORB bytes taken as 32 numbers).
+struct FloatSpace {
+  using Element = float;
+  using FlannDistance = flann::L2<float>;
+  using FlannIndex = flann::KDTreeIndex<FlannDistance>;
+  static float Distance(const float* a, const float* b, int d) {
+    float s = 0;
+    for (int i = 0; i < d; ++i) {
+      const float x = a[i] - b[i];
+      s += x * x;
+    }
+    return std::sqrt(s);
+  }
+  // FLANN reports squared L2.
+  static float FromFlann(float d) { return std::sqrt(std::max(0.0f, d)); }
+};
+
+// Packed binary descriptors under Hamming distance.
+struct BinarySpace {
+  using Element = unsigned char;
+  using FlannDistance = flann::Hamming<unsigned char>;
+  using FlannIndex = flann::HierarchicalClusteringIndex<FlannDistance>;
+  static float Distance(const unsigned char* a, const unsigned char* b, int d) {
+    int s = 0;
+    for (int i = 0; i < d; ++i) s += __builtin_popcount(static_cast<unsigned>(a[i] ^ b[i]));
+    return static_cast<float>(s);
+  }
+  static float FromFlann(unsigned int d) { return static_cast<float>(d); }
+};
+
+// Converts descriptors to the element type of the metric's space.
+inline cv::Mat ToSpace(const cv::Mat& desc, Metric metric) {
+  if (metric == Metric::kHamming) {
+    if (desc.type() != CV_8U) throw std::invalid_argument("hamming vocabulary needs CV_8U descriptors");
+    return desc.isContinuous() ? desc : desc.clone();
+  }
+  if (metric == Metric::kL2Bytes && desc.type() != CV_8U) {
+    throw std::invalid_argument("l2_bytes vocabulary needs CV_8U (ORB) descriptors");
+  }
+  if (metric == Metric::kL2 && desc.type() != CV_32F) {
+    throw std::invalid_argument("l2 vocabulary needs CV_32F (SIFT) descriptors");
+  }
+  cv::Mat f;
+  desc.convertTo(f, CV_32F);
+  return f;
+}
+
+// ---------------------------------------------------------------------------------------------
+// k-means pieces shared by AKM and HKM.
+
+// Recomputes each centroid from its members (the mean, or the bitwise majority for binary
+// descriptors); empty clusters restart at a random descriptor (vocabulary_akm.cpp).
+void UpdateCentroids(const cv::Mat& data, const std::vector<uint32_t>& label, cv::Mat* centroids,
+                     std::mt19937_64& rng, int threads);
+
+// Greedy k-means++ seeding (Arthur & Vassilvitskii 2007, with the 2 + log k local trials of
+// scikit-learn): each new centre is the best of several rows drawn with probability
+// proportional to their squared distance to the nearest centre so far.
+template <typename Space>
+void SeedPlusPlus(const cv::Mat& data, const std::vector<int>& members, int k,
+                  std::mt19937_64& rng, cv::Mat* centers) {
+  using E = typename Space::Element;
+  const int d = data.cols;
+  const int n = static_cast<int>(members.size());
+  centers->create(k, d, data.type());
+  const int trials = 2 + static_cast<int>(std::log(static_cast<double>(k)));
+  std::vector<double> dmin(n), cand(n), best_cand(n);
+  std::uniform_int_distribution<int> first(0, n - 1);
+  data.row(members[first(rng)]).copyTo(centers->row(0));
+  double potential = 0;
+  for (int i = 0; i < n; ++i) {
+    const double dd = Space::Distance(data.ptr<E>(members[i]), centers->ptr<E>(0), d);
+    dmin[i] = dd * dd;
+    potential += dmin[i];
+  }
+  for (int c = 1; c < k; ++c) {
+    double best_potential = std::numeric_limits<double>::max();
+    int best = 0;
+    for (int t = 0; t < trials; ++t) {
+      std::uniform_real_distribution<double> u(0, potential);
+      double x = u(rng);
+      int pick = n - 1;
+      for (int i = 0; i < n; ++i) {
+        x -= dmin[i];
+        if (x <= 0) {
+          pick = i;
+          break;
+        }
+      }
+      double pot = 0;
+      for (int i = 0; i < n; ++i) {
+        const double dd = Space::Distance(data.ptr<E>(members[i]), data.ptr<E>(members[pick]), d);
+        cand[i] = std::min(dmin[i], dd * dd);
+        pot += cand[i];
+      }
+      if (pot < best_potential) {
+        best_potential = pot;
+        best = pick;
+        best_cand.swap(cand);
+      }
+    }
+    data.row(members[best]).copyTo(centers->row(c));
+    dmin.swap(best_cand);
+    best_cand.resize(n);
+    potential = best_potential;
+  }
+}
+
+// ---------------------------------------------------------------------------------------------
+// The two kinds: training on descriptors already in the metric's space (ToSpace), and reading
+// the words a file stores after the common header (vocabulary.cpp writes that header).
+
+// Flat k-means with approximate assignment (vocabulary_akm.cpp).
+std::unique_ptr<Vocabulary> TrainAkm(const VocabularyOptions& options, const cv::Mat& data, bool progress);
+std::unique_ptr<Vocabulary> ReadAkm(BinaryReader* r, Metric metric);
+// The vocabulary tree (vocabulary_hkm.cpp).
+std::unique_ptr<Vocabulary> TrainHkm(const VocabularyOptions& options, const cv::Mat& data, bool progress);
+std::unique_ptr<Vocabulary> ReadHkm(BinaryReader* r, Metric metric);
+
+// Limits on what a file may claim (a damaged size must not allocate the machine away).
+constexpr uint64_t kMaxWords = 100000000;
+
+}  // namespace vocabulary_internal
+}  // namespace gtbow

@@ -1,0 +1,234 @@
+// Shared by the rostest suites (test/ros/*_rostest.cpp, one executable: localizer_rostest). Each
+// .test file starts the node(s) and runs one suite with --gtest_filter:
+//   mapping.test       Mapping.*     (mapping_rostest.cpp)    revisits get the right keyframes
+//   localization.test  SaveLoad.*    (save_load_rostest.cpp)  a saved map loads into a fresh node,
+//                                    which answers the same and localizes a later-day run
+//   bad_input.test     BadInput.*    (bad_input_rostest.cpp)  bad input is counted, nothing lost
+//   services.test      Services.*    (services_rostest.cpp)   external mode, compressed images,
+//                                    the map services
+//   soak.test          Soak.*        (soak_rostest.cpp)       `make soak`, and 60 s under TSan
+// The suites replay the bags test/ros/make_test_data.sh generated (images and ground-truth TF of
+// a small synthetic floor) and check what comes out against the ground truth.
+#pragma once
+
+#include <signal.h>
+#include <sys/resource.h>
+
+#include <algorithm>
+#include <atomic>
+#include <random>
+#include <thread>
+#include <iterator>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <mutex>
+#include <sstream>
+#include <string>
+#include <tuple>
+#include <vector>
+
+#include <diagnostic_msgs/DiagnosticArray.h>
+#include <geometry_msgs/PoseStamped.h>
+#include <geometry_msgs/PoseWithCovarianceStamped.h>
+#include <gtest/gtest.h>
+#include <nodelet/NodeletLoad.h>
+#include <nodelet/NodeletUnload.h>
+#include <ros/network.h>
+#include <xmlrpcpp/XmlRpcClient.h>
+#include <ros/ros.h>
+#include <ros/topic.h>
+#include <rosbag/bag.h>
+#include <rosbag/view.h>
+#include <sensor_msgs/Image.h>
+#include <tf2_msgs/TFMessage.h>
+#include <tf2_ros/buffer.h>
+#include <tf2_ros/static_transform_broadcaster.h>
+#include <tf2_ros/transform_listener.h>
+#include <visualization_msgs/MarkerArray.h>
+
+#include "ground_texture_bow/GetInfo.h"
+#include "ground_texture_bow/LoadMap.h"
+#include "ground_texture_bow/LoopClosure.h"
+#include "ground_texture_bow/QueryCandidates.h"
+#include "ground_texture_bow/AddKeyframe.h"
+#include "ground_texture_bow/CandidateList.h"
+#include "ground_texture_bow/Localize.h"
+#include "ground_texture_bow/Reset.h"
+#include "ground_texture_bow/SetMode.h"
+#include <cv_bridge/cv_bridge.h>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+#include <sensor_msgs/CompressedImage.h>
+#include "ground_texture_bow/SaveMap.h"
+#include "ground_texture_bow/Status.h"
+#include "ground_texture_bow/core/geometry.h"
+#include "ground_texture_bow/core/file_util.h"
+#include "ground_texture_bow/ros/conversions.h"
+
+
+namespace rostest_util {
+
+namespace fs = std::filesystem;
+using ground_texture_bow::Status;
+
+inline std::string g_data;  // the test data directory (~data parameter)
+inline const gtbow::ImageGeometry kGeometry{640, 480, 0.00025};
+
+struct Frame {
+  sensor_msgs::ImageConstPtr image;
+  tf2_msgs::TFMessageConstPtr tf;  // may be null (bag without TF)
+  gtbow::Pose2D truth;
+};
+
+inline std::vector<Frame> ReadBag(const std::string& path) {
+  rosbag::Bag bag(path, rosbag::bagmode::Read);
+  std::map<ros::Time, Frame> by_stamp;
+  for (const rosbag::MessageInstance& m : rosbag::View(bag)) {
+    if (auto img = m.instantiate<sensor_msgs::Image>()) {
+      by_stamp[img->header.stamp].image = img;
+    } else if (auto tf = m.instantiate<tf2_msgs::TFMessage>()) {
+      by_stamp[tf->transforms.at(0).header.stamp].tf = tf;
+    } else if (auto p = m.instantiate<geometry_msgs::PoseStamped>()) {
+      const auto& q = p->pose.orientation;
+      by_stamp[p->header.stamp].truth = {p->pose.position.x, p->pose.position.y,
+                                         gtbow_ros::YawOf(q.x, q.y, q.z, q.w)};
+    }
+  }
+  std::vector<Frame> out;
+  for (auto& [stamp, f] : by_stamp) out.push_back(f);
+  return out;
+}
+
+// Keeps every message received on a topic; the spinner thread appends, tests read copies.
+template <typename M>
+class Collector {
+ public:
+  explicit Collector(const std::string& topic, uint32_t queue = 100) {
+    sub_ = ros::NodeHandle().subscribe<M>(topic, queue, [this](const boost::shared_ptr<const M>& msg) {
+      std::lock_guard<std::mutex> lock(mutex_);
+      messages_.push_back(*msg);
+    });
+  }
+  std::vector<M> Get() const {
+    std::lock_guard<std::mutex> lock(mutex_);
+    return messages_;
+  }
+  void Stop() { sub_.shutdown(); }
+
+ private:
+  mutable std::mutex mutex_;
+  std::vector<M> messages_;
+  ros::Subscriber sub_;
+};
+
+template <typename Srv>
+Srv Call(const std::string& name, Srv srv = Srv()) {
+  EXPECT_TRUE(ros::service::waitForService(name, ros::Duration(30))) << name;
+  EXPECT_TRUE(ros::service::call(name, srv)) << name;
+  return srv;
+}
+
+inline ground_texture_bow::GetInfo::Response Info(const std::string& node) {
+  return Call<ground_texture_bow::GetInfo>(node + "/get_info").response;
+}
+
+// Publishes each frame's TF and image at `rate` Hz at most: each image only once the node has
+// dealt with the previous one (so that a slow machine or a sanitizer build drops nothing), then
+// waits until the node has dealt with every image it received.
+inline void Replay(const std::vector<Frame>& frames, const std::string& topic, const std::string& node,
+            double rate) {
+  ros::NodeHandle nh;
+  ros::Publisher img_pub = nh.advertise<sensor_msgs::Image>(topic, 10);
+  ros::Publisher tf_pub = nh.advertise<tf2_msgs::TFMessage>("/tf", 100);
+  const ros::WallTime deadline = ros::WallTime::now() + ros::WallDuration(20);
+  while (img_pub.getNumSubscribers() == 0 && ros::WallTime::now() < deadline) ros::WallDuration(0.05).sleep();
+  ASSERT_GT(img_pub.getNumSubscribers(), 0u) << "nobody subscribes to " << topic;
+  ros::WallDuration(0.5).sleep();
+  const uint64_t before = Info(node).images_received;
+  for (size_t i = 0; i < frames.size(); ++i) {
+    const Frame& f = frames[i];
+    if (f.tf) tf_pub.publish(f.tf);
+    ros::WallDuration(0.01).sleep();  // the transform arrives before the image
+    img_pub.publish(f.image);
+    ros::WallDuration(1.0 / rate).sleep();
+    const ros::WallTime limit = ros::WallTime::now() + ros::WallDuration(10);
+    while (ros::WallTime::now() < limit) {
+      const auto info = Info(node);
+      if (info.images_received >= before + i + 1 &&
+          info.images_processed + info.images_dropped + info.images_rejected >= info.images_received) {
+        break;
+      }
+      ros::WallDuration(0.02).sleep();
+    }
+  }
+  const ros::WallTime end = ros::WallTime::now() + ros::WallDuration(30);
+  while (ros::WallTime::now() < end) {
+    const auto info = Info(node);
+    if (info.images_received >= before + frames.size() &&
+        info.images_processed + info.images_dropped + info.images_rejected >= info.images_received) {
+      return;
+    }
+    ros::WallDuration(0.1).sleep();
+  }
+  ADD_FAILURE() << node << " did not finish processing the replay";
+}
+
+// The process id of a ROS node (the slave API's getPid), or -1.
+inline pid_t PidOf(const std::string& node) {
+  XmlRpc::XmlRpcValue args, result, payload;
+  args[0] = ros::this_node::getName();
+  args[1] = node;
+  if (!ros::master::execute("lookupNode", args, result, payload, true)) return -1;
+  std::string host;
+  uint32_t port = 0;
+  if (!ros::network::splitURI(static_cast<std::string>(payload), host, port)) return -1;
+  XmlRpc::XmlRpcClient client(host.c_str(), static_cast<int>(port), "/");
+  XmlRpc::XmlRpcValue call, reply;
+  call[0] = ros::this_node::getName();
+  if (!client.execute("getPid", call, reply) || reply.getType() != XmlRpc::XmlRpcValue::TypeArray ||
+      reply.size() < 3) {
+    return -1;
+  }
+  return static_cast<pid_t>(static_cast<int>(reply[2]));
+}
+
+// The latest /diagnostics status of a node, with its values. diagnostic_updater names a status
+// "<node name without the leading slash>: <task>".
+struct NodeStatus {
+  bool seen = false;
+  diagnostic_msgs::DiagnosticStatus status;
+  std::map<std::string, std::string> values;
+};
+inline NodeStatus LatestStatus(const std::vector<diagnostic_msgs::DiagnosticArray>& arrays,
+                        const std::string& node) {
+  NodeStatus out;
+  for (const auto& array : arrays) {
+    for (const auto& st : array.status) {
+      const std::string prefix = (node.rfind('/', 0) == 0 ? node.substr(1) : node) + ":";
+      if (st.name.rfind(prefix, 0) != 0) continue;
+      out.seen = true;
+      out.status = st;
+      out.values.clear();
+      for (const auto& kv : st.values) out.values[kv.key] = kv.value;
+    }
+  }
+  return out;
+}
+
+inline double PositionErrorMm(const gtbow::Pose2D& a, const gtbow::Pose2D& b) {
+  return 1000.0 * std::hypot(a.x - b.x, a.y - b.y);
+}
+inline double HeadingErrorDeg(const gtbow::Pose2D& a, const gtbow::Pose2D& b) {
+  return std::abs(std::remainder(a.theta - b.theta, 2 * M_PI)) * 180.0 / M_PI;
+}
+
+// The query's pose from a candidate's keyframe pose and its relative pose (optical frame).
+inline gtbow::Pose2D Compose(const gtbow::Pose2D& keyframe, const geometry_msgs::Pose2D& optical) {
+  // Back to the view from above (the optical frame is mirrored), then composed.
+  return gtbow::Compose(keyframe, {optical.x, -optical.y, -optical.theta});
+}
+
+}  // namespace rostest_util
