@@ -151,6 +151,8 @@ using detail::CompactEntry;
 using detail::PostingIndex;
 using detail::PreciseEntry;
 
+inline const char* Bytes(const void* p) { return static_cast<const char*>(p); }
+
 // Appends image `id`'s entries to the rows' tails.
 template <class E>
 void AddToIndex(PostingIndex<E>* index, const BowVector& v, uint32_t id) {

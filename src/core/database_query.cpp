@@ -74,7 +74,6 @@ struct Segment {
   float wq;         // the query's weight on this row
 };
 
-inline const char* Bytes(const void* p) { return static_cast<const char*>(p); }
 
 struct QueryPlan {
   int bins;

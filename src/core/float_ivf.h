@@ -15,6 +15,7 @@
 #include "ground_texture_bow/core/binary_io.h"
 #include "ground_texture_bow/core/parallel.h"
 #include "ground_texture_bow/core/vocabulary.h"
+#include "binary_ivf.h"
 #include "byte_distance.h"
 #include "vocabulary_internal.h"
 

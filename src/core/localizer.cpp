@@ -35,6 +35,9 @@ Localizer::Localizer(std::shared_ptr<Vocabulary> vocabulary, std::string vocabul
       options_(options) {
   if (!vocabulary_) throw std::invalid_argument("Localizer: no vocabulary");
   options_.Check();
+  // The extractor first: a preset for other features (SIFT, say) also asks for another metric,
+  // and the features are the root of the difference.
+  CheckVocabularyExtractor(*vocabulary_, vocabulary_path_, options_.retrieval.features);
   const VocabularyOptions& vo = options_.retrieval.vocabulary;
   if (vo.kind != vocabulary_->kind() || vo.metric != vocabulary_->metric()) {
     throw std::invalid_argument("the preset asks for a " + VocabularyKindName(vo.kind) + "/" +
@@ -43,7 +46,6 @@ Localizer::Localizer(std::shared_ptr<Vocabulary> vocabulary, std::string vocabul
                                 VocabularyKindName(vocabulary_->kind()) + "/" +
                                 MetricName(vocabulary_->metric()));
   }
-  CheckVocabularyExtractor(*vocabulary_, vocabulary_path_, options_.retrieval.features);
   vocabulary_->set_search(vo.ann, vo.nprobe);
   vocabulary_->set_checks(vo.checks);
   encoder_ = std::make_unique<BowEncoder>(*vocabulary_, options_.retrieval.bow);

@@ -392,7 +392,10 @@ TEST_F(LocalizerFiles, EveryKeyOfThePresetGuardsTheMap) {
   // Keys that cannot change alone, and what must change with them.
   const std::map<std::string, std::vector<std::string>> companions = {
       {"features.type", {"vocabulary.metric: l2", "bow.size_binning: percentile"}},
-      {"vocabulary.kind", {"bow.soft_assignment: 1"}}};
+      {"features.grid_cols", {"features.grid_rows: 2"}},
+      {"features.grid_rows", {"features.grid_cols: 2"}},
+      {"vocabulary.kind", {"bow.soft_assignment: 1"}},
+      {"bow.scoring", {"bow.orientation_verification: false"}}};
   const std::vector<std::string> names = {"orb", "sift", "none", "normalize", "clahe", "akm", "hkm",
                                           "l2_bytes", "hamming", "l2", "flann", "ivf", "octave",
                                           "percentile", "dot", "dbow_l1", "global", "per_bin"};
@@ -434,7 +437,12 @@ TEST_F(LocalizerFiles, EveryKeyOfThePresetGuardsTheMap) {
       }
       try {
         RetrievalConfig c = ParseRetrievalConfig(text, key);
-        if (FormatRetrievalConfig(c) != base_text) {
+        // The key itself must now have another value (not only its companions).
+        const std::string formatted = FormatRetrievalConfig(c);
+        const size_t pos = formatted.find(line, formatted.find(key.substr(0, key.find('.')) + ":\n"));
+        const std::string new_value =
+            formatted.substr(pos + line.size(), formatted.find('\n', pos) - pos - line.size());
+        if (new_value != old_value) {
           changed = c;
           break;
         }
