@@ -18,8 +18,8 @@ PACKAGES=(
   libopencv-dev libflann-dev liblz4-dev libeigen3-dev libyaml-cpp-dev libcli11-dev
   # tests and plots
   libgtest-dev libgmock-dev python3-matplotlib
-  # make fuzz: clang with libFuzzer and the sanitizer runtimes
-  clang libclang-rt-14-dev
+  # make fuzz: clang with libFuzzer and the sanitizer runtimes; .ci/run: clang-format
+  clang libclang-rt-14-dev clang-format
   # make test-sanitize: the ASan/UBSan/TSan runtimes, llvm-symbolizer for the TSan reports
   libasan8 libubsan1 libtsan2 llvm
 )

@@ -36,7 +36,8 @@ uint64_t Checksum64(const void* data, size_t size) {
   return Final(h);
 }
 
-Checksum64Builder::Checksum64Builder(uint64_t total_size) : h_(0x9E3779B97F4A7C15ULL ^ total_size) {}
+Checksum64Builder::Checksum64Builder(uint64_t total_size)
+    : h_(0x9E3779B97F4A7C15ULL ^ total_size) {}
 
 void Checksum64Builder::Add(const void* data, size_t size) {
   const auto* p = static_cast<const unsigned char*>(data);
@@ -92,7 +93,8 @@ FramedFileWriter::FramedFileWriter(const std::filesystem::path& path, const char
 FramedFileWriter::~FramedFileWriter() = default;
 
 void FramedFileWriter::Write(const void* data, size_t size) {
-  if (written_ + size > size_) throw std::logic_error("FramedFileWriter: more bytes than announced");
+  if (written_ + size > size_)
+    throw std::logic_error("FramedFileWriter: more bytes than announced");
   sum_.Add(data, size);
   file_->Write(data, size);
   written_ += size;
@@ -116,8 +118,8 @@ FramedPayload ReadFramedFile(const std::filesystem::path& path, const char magic
   const std::string src = path.string();
   constexpr size_t kHeader = 8 + sizeof(uint32_t) + sizeof(uint64_t);
   if (data.size() < kHeader + sizeof(uint64_t)) {
-    throw std::runtime_error(src + ": not a " + what + " file (too short: " +
-                             std::to_string(data.size()) + " bytes)");
+    throw std::runtime_error(src + ": not a " + what +
+                             " file (too short: " + std::to_string(data.size()) + " bytes)");
   }
   if (std::memcmp(data.data(), magic, 8) != 0) {
     throw std::runtime_error(src + ": not a " + what + " file (wrong magic number)");
@@ -127,8 +129,9 @@ FramedPayload ReadFramedFile(const std::filesystem::path& path, const char magic
   if (v < oldest || v > version) {
     throw std::runtime_error(src + ": " + what + " format version " + std::to_string(v) +
                              " is not supported (this build reads version " +
-                             (oldest == version ? std::to_string(version)
-                                                : std::to_string(oldest) + " to " + std::to_string(version)) +
+                             (oldest == version
+                                  ? std::to_string(version)
+                                  : std::to_string(oldest) + " to " + std::to_string(version)) +
                              ")");
   }
   uint64_t size;

@@ -32,7 +32,8 @@ inline bool Closer(const WordHit& a, const WordHit& b) {
 BinaryIvfIndex::BinaryIvfIndex(const cv::Mat& words, uint64_t seed, int threads)
     : bytes_(words.cols), chunks_(words.cols / 8) {
   if (words.type() != CV_8U || words.cols % 8 != 0 || words.rows < 1) {
-    throw std::invalid_argument("BinaryIvfIndex: words must be CV_8U rows of a multiple of 8 bytes");
+    throw std::invalid_argument(
+        "BinaryIvfIndex: words must be CV_8U rows of a multiple of 8 bytes");
   }
   threads = ThreadCount(threads);
   const int v = words.rows;
@@ -53,8 +54,8 @@ BinaryIvfIndex::BinaryIvfIndex(const cv::Mat& words, uint64_t seed, int threads)
       std::vector<uint32_t> idx(nlist), dist(nlist);
       for (size_t i = b; i < e; ++i) {
         const auto q = PackedQuery(words.ptr<uint8_t>(static_cast<int>(i)), bytes_);
-        HammingBelow(q.data(), coarse_packed_.data(), nlist, chunks_, std::numeric_limits<uint32_t>::max(),
-                     idx.data(), dist.data());
+        HammingBelow(q.data(), coarse_packed_.data(), nlist, chunks_,
+                     std::numeric_limits<uint32_t>::max(), idx.data(), dist.data());
         label[i] = static_cast<uint32_t>(std::min_element(dist.begin(), dist.end()) - dist.begin());
       }
     });
@@ -98,8 +99,9 @@ void ReadIvfLists(BinaryReader* r, int32_t nlist, int words, const std::string& 
                   std::vector<uint32_t>* offsets, std::vector<uint32_t>* ids) {
   *offsets = r->GetVector<uint32_t>(static_cast<uint64_t>(nlist) + 1);
   *ids = r->GetVector<uint32_t>(static_cast<uint64_t>(words));
-  if (offsets->size() != static_cast<size_t>(nlist) + 1 || ids->size() != static_cast<size_t>(words) ||
-      offsets->front() != 0 || offsets->back() != static_cast<uint32_t>(words)) {
+  if (offsets->size() != static_cast<size_t>(nlist) + 1 ||
+      ids->size() != static_cast<size_t>(words) || offsets->front() != 0 ||
+      offsets->back() != static_cast<uint32_t>(words)) {
     r->Fail("invalid " + what + " lists");
   }
   for (int c = 0; c < nlist; ++c) {
@@ -113,7 +115,8 @@ void ReadIvfLists(BinaryReader* r, int32_t nlist, int words, const std::string& 
 
 BinaryIvfIndex::BinaryIvfIndex(const cv::Mat& words, BinaryReader* r)
     : bytes_(words.cols), chunks_(words.cols / 8) {
-  if (words.type() != CV_8U || words.cols % 8 != 0) r->Fail("binary IVF lists for words that are not binary");
+  if (words.type() != CV_8U || words.cols % 8 != 0)
+    r->Fail("binary IVF lists for words that are not binary");
   const int32_t nlist = r->Get<int32_t>();
   if (nlist < 1 || nlist > words.rows) r->Fail("invalid binary IVF header");
   auto coarse = r->GetVector<uint8_t>(static_cast<uint64_t>(nlist) * bytes_);
@@ -134,8 +137,8 @@ void BinaryIvfIndex::Pack(const cv::Mat& words) {
     const uint32_t b = offsets_[c], e = offsets_[c + 1];
     rows.resize(static_cast<size_t>(e - b) * bytes_);
     for (uint32_t k = b; k < e; ++k) {
-      std::memcpy(rows.data() + static_cast<size_t>(k - b) * bytes_, words.ptr<uint8_t>(static_cast<int>(ids_[k])),
-                  bytes_);
+      std::memcpy(rows.data() + static_cast<size_t>(k - b) * bytes_,
+                  words.ptr<uint8_t>(static_cast<int>(ids_[k])), bytes_);
     }
     PackBinaryRows(rows.data(), static_cast<int>(e - b), bytes_, &packed_);
   }
@@ -157,7 +160,8 @@ void BinaryIvfIndex::Search(const cv::Mat& q, int r, int nprobe, std::vector<Wor
   nprobe = std::max(1, std::min(nprobe, nlist));
   out->assign(static_cast<size_t>(q.rows) * r, WordHit{0, std::numeric_limits<float>::infinity()});
   std::vector<uint64_t> pq(static_cast<size_t>(q.rows) * chunks_);
-  for (int i = 0; i < q.rows; ++i) std::memcpy(pq.data() + static_cast<size_t>(i) * chunks_, q.ptr<uint8_t>(i), bytes_);
+  for (int i = 0; i < q.rows; ++i)
+    std::memcpy(pq.data() + static_cast<size_t>(i) * chunks_, q.ptr<uint8_t>(i), bytes_);
   // list -> descriptors probing it
   std::vector<std::vector<int>> visitors(nlist);
   if (nprobe == nlist) {
@@ -169,9 +173,10 @@ void BinaryIvfIndex::Search(const cv::Mat& q, int r, int nprobe, std::vector<Wor
     std::vector<uint32_t> idx(nlist), dist(nlist);
     std::vector<uint64_t> key(nlist);
     for (int i = 0; i < q.rows; ++i) {
-      HammingBelow(pq.data() + static_cast<size_t>(i) * chunks_, coarse_packed_.data(), nlist, chunks_,
-                   std::numeric_limits<uint32_t>::max(), idx.data(), dist.data());
-      for (int c = 0; c < nlist; ++c) key[c] = (static_cast<uint64_t>(dist[c]) << 32) | static_cast<uint32_t>(c);
+      HammingBelow(pq.data() + static_cast<size_t>(i) * chunks_, coarse_packed_.data(), nlist,
+                   chunks_, std::numeric_limits<uint32_t>::max(), idx.data(), dist.data());
+      for (int c = 0; c < nlist; ++c)
+        key[c] = (static_cast<uint64_t>(dist[c]) << 32) | static_cast<uint32_t>(c);
       std::nth_element(key.begin(), key.begin() + (nprobe - 1), key.end());
       for (int p = 0; p < nprobe; ++p) visitors[static_cast<uint32_t>(key[p])].push_back(i);
     }
@@ -190,8 +195,9 @@ void BinaryIvfIndex::Search(const cv::Mat& q, int r, int nprobe, std::vector<Wor
       // Distances up to the current worst (ties may still win on the word id).
       const uint32_t threshold = std::isinf(worst) ? std::numeric_limits<uint32_t>::max()
                                                    : static_cast<uint32_t>(worst) + 1;
-      const int found = HammingBelow(pq.data() + static_cast<size_t>(i) * chunks_, blocks,
-                                     static_cast<int>(e - b), chunks_, threshold, idx.data(), dist.data());
+      const int found =
+          HammingBelow(pq.data() + static_cast<size_t>(i) * chunks_, blocks,
+                       static_cast<int>(e - b), chunks_, threshold, idx.data(), dist.data());
       for (int j = 0; j < found; ++j) {
         const WordHit hit{ids_[b + idx[j]], static_cast<float>(dist[j])};
         if (!Closer(hit, best[r - 1])) continue;

@@ -45,10 +45,10 @@ class BinaryIvfIndex {
 
   int bytes_;
   int chunks_;
-  cv::Mat coarse_;                   // nlist x bytes binary centres
-  std::vector<uint32_t> offsets_;    // list c holds positions [offsets_[c], offsets_[c + 1])
-  std::vector<uint32_t> ids_;        // word id at each position
-  std::vector<uint64_t> packed_;     // the words in list order, packed per list
+  cv::Mat coarse_;                      // nlist x bytes binary centres
+  std::vector<uint32_t> offsets_;       // list c holds positions [offsets_[c], offsets_[c + 1])
+  std::vector<uint32_t> ids_;           // word id at each position
+  std::vector<uint64_t> packed_;        // the words in list order, packed per list
   std::vector<size_t> packed_offsets_;  // list c starts at packed_[packed_offsets_[c]]
   std::vector<uint64_t> coarse_packed_;
 };

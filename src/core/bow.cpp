@@ -10,8 +10,9 @@
 namespace gtbow {
 
 namespace {
-constexpr EnumName<SizeBinning> kSizeBinnings[] = {
-    {"none", SizeBinning::kNone}, {"octave", SizeBinning::kOctave}, {"percentile", SizeBinning::kPercentile}};
+constexpr EnumName<SizeBinning> kSizeBinnings[] = {{"none", SizeBinning::kNone},
+                                                   {"octave", SizeBinning::kOctave},
+                                                   {"percentile", SizeBinning::kPercentile}};
 constexpr EnumName<Scoring> kScorings[] = {{"dot", Scoring::kDot}, {"dbow_l1", Scoring::kDbowL1}};
 constexpr EnumName<Normalization> kNormalizations[] = {{"global", Normalization::kGlobal},
                                                        {"per_bin", Normalization::kPerBin}};
@@ -56,16 +57,17 @@ BowEncoder::BowEncoder(const Vocabulary& vocabulary, const BowOptions& options)
     : vocabulary_(vocabulary), options_(options) {
   options_.Check();
   if (options_.soft_assignment > vocabulary_.max_neighbours()) {
-    throw std::invalid_argument("bow: soft_assignment r = " + std::to_string(options_.soft_assignment) +
-                                " exceeds what a " + VocabularyKindName(vocabulary_.kind()) +
-                                " vocabulary supports (" + std::to_string(vocabulary_.max_neighbours()) + ")");
+    throw std::invalid_argument(
+        "bow: soft_assignment r = " + std::to_string(options_.soft_assignment) +
+        " exceeds what a " + VocabularyKindName(vocabulary_.kind()) + " vocabulary supports (" +
+        std::to_string(vocabulary_.max_neighbours()) + ")");
   }
   if (options_.size_binning == SizeBinning::kPercentile &&
       vocabulary_.size_thresholds().size() + 1 != static_cast<size_t>(options_.num_size_bins)) {
-    throw std::invalid_argument("bow: percentile size binning with S = " +
-                                std::to_string(options_.num_size_bins) +
-                                " needs a vocabulary trained with S - 1 size thresholds; it has " +
-                                std::to_string(vocabulary_.size_thresholds().size()));
+    throw std::invalid_argument(
+        "bow: percentile size binning with S = " + std::to_string(options_.num_size_bins) +
+        " needs a vocabulary trained with S - 1 size thresholds; it has " +
+        std::to_string(vocabulary_.size_thresholds().size()));
   }
 }
 
@@ -75,8 +77,10 @@ uint32_t BowEncoder::num_rows() const {
 
 int BowEncoder::SizeBin(const Keypoint& k) const {
   switch (options_.size_binning) {
-    case SizeBinning::kNone: return 0;
-    case SizeBinning::kOctave: return std::clamp(k.octave, 0, options_.num_size_bins - 1);
+    case SizeBinning::kNone:
+      return 0;
+    case SizeBinning::kOctave:
+      return std::clamp(k.octave, 0, options_.num_size_bins - 1);
     case SizeBinning::kPercentile: {
       const auto& t = vocabulary_.size_thresholds();
       return static_cast<int>(std::upper_bound(t.begin(), t.end(), k.size) - t.begin());
@@ -101,7 +105,8 @@ BowVector BowEncoder::Encode(const ImageFeatures& f) const {
     // Descriptor assignment split over threads: each assigns a contiguous range of rows.
     std::vector<std::vector<WordHit>> part(parts);
     RunTasks(parts, [&](int t) {
-      const int b = static_cast<int>(f.size() * t / parts), e = static_cast<int>(f.size() * (t + 1) / parts);
+      const int b = static_cast<int>(f.size() * t / parts),
+                e = static_cast<int>(f.size() * (t + 1) / parts);
       vocabulary_.Assign(f.descriptors.rowRange(b, e), r, &part[t]);
     });
     hits.reserve(f.size() * r);
@@ -123,8 +128,8 @@ BowVector BowEncoder::Encode(const ImageFeatures& f) const {
     }
     for (int j = 0; j < r; ++j) {
       const double a = sum > 0 ? w[j] / sum : 1.0 / r;
-      kps.push_back({base + hits[i * r + j].word, static_cast<uint16_t>(i), 0.0f,
-                     static_cast<float>(a)});
+      kps.push_back(
+          {base + hits[i * r + j].word, static_cast<uint16_t>(i), 0.0f, static_cast<float>(a)});
     }
   }
   return FromAssignments(std::move(out), f.size());

@@ -40,8 +40,8 @@ void PackQuery(const uint8_t* q, int d, int16_t* out) {
 
 namespace {
 
-int PortableBelow(const int16_t* pq, const int16_t* blocks, int n, int d,
-                                        int32_t threshold, uint32_t* index, int32_t* distance) {
+int PortableBelow(const int16_t* pq, const int16_t* blocks, int n, int d, int32_t threshold,
+                  uint32_t* index, int32_t* distance) {
   int m = 0;
   for (int i = 0; i < n; ++i) {
     const int16_t* blk = blocks + static_cast<size_t>(i / kPackedBlockRows) * kPackedBlockRows * d;
@@ -49,7 +49,8 @@ int PortableBelow(const int16_t* pq, const int16_t* blocks, int n, int d,
     int32_t s = 0;
     for (int k = 0; k < d / 2; ++k) {
       const int32_t a = pq[k * 2 * kPackedBlockRows] - blk[k * 2 * kPackedBlockRows + 2 * lane];
-      const int32_t b = pq[k * 2 * kPackedBlockRows + 1] - blk[k * 2 * kPackedBlockRows + 2 * lane + 1];
+      const int32_t b =
+          pq[k * 2 * kPackedBlockRows + 1] - blk[k * 2 * kPackedBlockRows + 2 * lane + 1];
       s += a * a + b * b;
     }
     if (s < threshold) {
@@ -70,8 +71,8 @@ namespace {
 __attribute__((target("avx2"), always_inline)) inline void Emit8(__m256i v, __m256i t, int valid,
                                                                  int first, uint32_t* index,
                                                                  int32_t* distance, int* m) {
-  unsigned mask = static_cast<unsigned>(
-      _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpgt_epi32(t, v))));
+  unsigned mask =
+      static_cast<unsigned>(_mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpgt_epi32(t, v))));
   if (valid < 8) mask &= (1u << std::max(valid, 0)) - 1;  // padding rows of the last block
   if (mask == 0) return;
   alignas(32) int32_t s[8];
@@ -84,9 +85,9 @@ __attribute__((target("avx2"), always_inline)) inline void Emit8(__m256i v, __m2
   }
 }
 
-__attribute__((target("avx2"))) int Avx2PackedBelow(const int16_t* pq, const int16_t* blocks,
-                                                    int n, int d, int32_t threshold,
-                                                    uint32_t* index, int32_t* distance) {
+__attribute__((target("avx2"))) int Avx2PackedBelow(const int16_t* pq, const int16_t* blocks, int n,
+                                                    int d, int32_t threshold, uint32_t* index,
+                                                    int32_t* distance) {
   const int pairs = d / 2;
   const size_t block = static_cast<size_t>(kPackedBlockRows) * d;
   const __m256i t = _mm256_set1_epi32(threshold);
@@ -97,8 +98,10 @@ __attribute__((target("avx2"))) int Avx2PackedBelow(const int16_t* pq, const int
     __m256i acc0 = _mm256_setzero_si256(), acc1 = _mm256_setzero_si256();
     for (int k = 0; k < pairs; ++k) {
       const __m256i qk = _mm256_loadu_si256(reinterpret_cast<const __m256i*>(pq + k * 32));
-      const __m256i x = _mm256_sub_epi16(_mm256_loadu_si256(reinterpret_cast<const __m256i*>(b + k * 32)), qk);
-      const __m256i y = _mm256_sub_epi16(_mm256_loadu_si256(reinterpret_cast<const __m256i*>(b + k * 32 + 16)), qk);
+      const __m256i x =
+          _mm256_sub_epi16(_mm256_loadu_si256(reinterpret_cast<const __m256i*>(b + k * 32)), qk);
+      const __m256i y = _mm256_sub_epi16(
+          _mm256_loadu_si256(reinterpret_cast<const __m256i*>(b + k * 32 + 16)), qk);
       acc0 = _mm256_add_epi32(acc0, _mm256_madd_epi16(x, x));
       acc1 = _mm256_add_epi32(acc1, _mm256_madd_epi16(y, y));
     }
@@ -127,17 +130,22 @@ __attribute__((target("avx512f,avx512bw,avx512vnni"))) int Avx512PackedBelow(
     __m512i acc2 = _mm512_setzero_si512(), acc3 = _mm512_setzero_si512();
     int k = 0;
     for (; k + 4 <= pairs; k += 4) {
-      const __m512i x0 = _mm512_sub_epi16(_mm512_loadu_si512(b + k * 32), _mm512_loadu_si512(pq + k * 32));
-      const __m512i x1 = _mm512_sub_epi16(_mm512_loadu_si512(b + k * 32 + 32), _mm512_loadu_si512(pq + k * 32 + 32));
-      const __m512i x2 = _mm512_sub_epi16(_mm512_loadu_si512(b + k * 32 + 64), _mm512_loadu_si512(pq + k * 32 + 64));
-      const __m512i x3 = _mm512_sub_epi16(_mm512_loadu_si512(b + k * 32 + 96), _mm512_loadu_si512(pq + k * 32 + 96));
+      const __m512i x0 =
+          _mm512_sub_epi16(_mm512_loadu_si512(b + k * 32), _mm512_loadu_si512(pq + k * 32));
+      const __m512i x1 = _mm512_sub_epi16(_mm512_loadu_si512(b + k * 32 + 32),
+                                          _mm512_loadu_si512(pq + k * 32 + 32));
+      const __m512i x2 = _mm512_sub_epi16(_mm512_loadu_si512(b + k * 32 + 64),
+                                          _mm512_loadu_si512(pq + k * 32 + 64));
+      const __m512i x3 = _mm512_sub_epi16(_mm512_loadu_si512(b + k * 32 + 96),
+                                          _mm512_loadu_si512(pq + k * 32 + 96));
       acc0 = _mm512_dpwssd_epi32(acc0, x0, x0);
       acc1 = _mm512_dpwssd_epi32(acc1, x1, x1);
       acc2 = _mm512_dpwssd_epi32(acc2, x2, x2);
       acc3 = _mm512_dpwssd_epi32(acc3, x3, x3);
     }
     for (; k < pairs; ++k) {
-      const __m512i x = _mm512_sub_epi16(_mm512_loadu_si512(b + k * 32), _mm512_loadu_si512(pq + k * 32));
+      const __m512i x =
+          _mm512_sub_epi16(_mm512_loadu_si512(b + k * 32), _mm512_loadu_si512(pq + k * 32));
       acc0 = _mm512_dpwssd_epi32(acc0, x, x);
     }
     acc0 = _mm512_add_epi32(acc0, acc2);
@@ -164,24 +172,30 @@ __attribute__((target("avx512f,avx512bw,avx512vnni"))) int Avx512PackedBelow(
 
 bool SimdKernelSupported(SimdKernel kernel) {
   switch (kernel) {
-    case SimdKernel::kPortable: return true;
+    case SimdKernel::kPortable:
+      return true;
 #ifdef GTBOW_HAVE_AVX2_KERNEL
-    case SimdKernel::kAvx2: return __builtin_cpu_supports("avx2");
+    case SimdKernel::kAvx2:
+      return __builtin_cpu_supports("avx2");
     case SimdKernel::kAvx512:
       return __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512bw") &&
              __builtin_cpu_supports("avx512vnni");
 #endif
-    default: return false;
+    default:
+      return false;
   }
 }
 
 int PackedSquaredDistancesBelowUsing(SimdKernel kernel, const int16_t* pq, const int16_t* blocks,
                                      int n, int d, int32_t threshold, uint32_t* index,
                                      int32_t* distance) {
-  if (!SimdKernelSupported(kernel)) throw std::invalid_argument("SIMD kernel not supported by this CPU");
+  if (!SimdKernelSupported(kernel))
+    throw std::invalid_argument("SIMD kernel not supported by this CPU");
 #ifdef GTBOW_HAVE_AVX2_KERNEL
-  if (kernel == SimdKernel::kAvx512) return Avx512PackedBelow(pq, blocks, n, d, threshold, index, distance);
-  if (kernel == SimdKernel::kAvx2) return Avx2PackedBelow(pq, blocks, n, d, threshold, index, distance);
+  if (kernel == SimdKernel::kAvx512)
+    return Avx512PackedBelow(pq, blocks, n, d, threshold, index, distance);
+  if (kernel == SimdKernel::kAvx2)
+    return Avx2PackedBelow(pq, blocks, n, d, threshold, index, distance);
 #endif
   return PortableBelow(pq, blocks, n, d, threshold, index, distance);
 }

@@ -4,9 +4,9 @@
 
 #include <functional>
 #include <map>
-#include <vector>
 #include <sstream>
 #include <stdexcept>
+#include <vector>
 
 #include "ground_texture_bow/core/file_util.h"
 
@@ -17,16 +17,18 @@ void RetrievalConfig::Check() const {
   vocabulary.Check();
   bow.Check();
   if (bow.compact_postings && features.num_features > 256) {
-    throw std::invalid_argument("bow: compact_postings holds at most 256 keypoints per image; set "
-                                "compact_postings: false for features.num_features " +
-                                std::to_string(features.num_features));
+    throw std::invalid_argument(
+        "bow: compact_postings holds at most 256 keypoints per image; set "
+        "compact_postings: false for features.num_features " +
+        std::to_string(features.num_features));
   }
   if (vocabulary.kind == VocabularyKind::kHkm && bow.soft_assignment != 1) {
     throw std::invalid_argument("bow: soft_assignment must be 1 with an hkm vocabulary");
   }
   const bool binary = features.type == FeatureType::kOrb;
   if (binary && vocabulary.metric == Metric::kL2) {
-    throw std::invalid_argument("vocabulary: metric l2 is for SIFT; use l2_bytes or hamming with ORB");
+    throw std::invalid_argument(
+        "vocabulary: metric l2 is for SIFT; use l2_bytes or hamming with ORB");
   }
   if (!binary && vocabulary.metric != Metric::kL2) {
     throw std::invalid_argument("vocabulary: SIFT descriptors need metric l2");
@@ -46,7 +48,8 @@ struct Field {
   const char* key;
   std::function<void(RetrievalConfig*, const YAML::Node&)> read;
   std::function<std::string(const RetrievalConfig&)> write;
-  bool recorded;  // written by FormatRetrievalConfig (threads are not: answers do not depend on them)
+  bool recorded;  // written by FormatRetrievalConfig (threads are not: answers do not depend on
+                  // them)
 };
 
 template <typename T>
@@ -104,7 +107,8 @@ const std::vector<Field>& Fields() {
       Value("features", "sift_contrast_threshold", &R::features, &F::sift_contrast_threshold),
       Value("features", "sift_edge_threshold", &R::features, &F::sift_edge_threshold),
       Value("features", "sift_sigma", &R::features, &F::sift_sigma),
-      Enum("vocabulary", "kind", &R::vocabulary, &V::kind, &ParseVocabularyKind, &VocabularyKindName),
+      Enum("vocabulary", "kind", &R::vocabulary, &V::kind, &ParseVocabularyKind,
+           &VocabularyKindName),
       Enum("vocabulary", "metric", &R::vocabulary, &V::metric, &ParseMetric, &MetricName),
       Value("vocabulary", "num_words", &R::vocabulary, &V::num_words),
       Value("vocabulary", "kmeans_iterations", &R::vocabulary, &V::kmeans_iterations),
@@ -124,7 +128,8 @@ const std::vector<Field>& Fields() {
       Value("bow", "num_size_bins", &R::bow, &B::num_size_bins),
       Value("bow", "soft_assignment", &R::bow, &B::soft_assignment),
       Value("bow", "sigma", &R::bow, &B::sigma),
-      Enum("bow", "normalization", &R::bow, &B::normalization, &ParseNormalization, &NormalizationName),
+      Enum("bow", "normalization", &R::bow, &B::normalization, &ParseNormalization,
+           &NormalizationName),
       Value("bow", "orientation_verification", &R::bow, &B::orientation_verification),
       Value("bow", "orientation_bins", &R::bow, &B::orientation_bins),
       Enum("bow", "scoring", &R::bow, &B::scoring, &ParseScoring, &ScoringName),
@@ -162,7 +167,8 @@ RetrievalConfig ParseRetrievalConfig(const std::string& text, const std::string&
   try {
     root = YAML::Load(text);
   } catch (const YAML::ParserException& e) {
-    throw std::runtime_error(source + ":" + std::to_string(e.mark.line + 1) + ": invalid YAML: " + e.msg);
+    throw std::runtime_error(source + ":" + std::to_string(e.mark.line + 1) +
+                             ": invalid YAML: " + e.msg);
   }
   RetrievalConfig c;
   if (root.IsNull()) return c;
@@ -251,11 +257,13 @@ void CheckVocabularyExtractor(const Vocabulary& vocabulary, const std::string& v
   }
   RetrievalConfig wanted;
   wanted.features = features;
-  const std::string diff = RetrievalConfigDifference(trained, "the vocabulary", wanted, "the preset");
+  const std::string diff =
+      RetrievalConfigDifference(trained, "the vocabulary", wanted, "the preset");
   if (!diff.empty()) {
     throw std::invalid_argument(vocabulary_name +
                                 ": the vocabulary was trained with another feature extractor than "
-                                "the preset's (" + diff + "); train it with the preset");
+                                "the preset's (" +
+                                diff + "); train it with the preset");
   }
 }
 

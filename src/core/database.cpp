@@ -9,10 +9,10 @@
 #include <stdexcept>
 #include <type_traits>
 
+#include "database_entries.h"
 #include "ground_texture_bow/core/binary_io.h"
 #include "ground_texture_bow/core/file_util.h"
 #include "ground_texture_bow/core/parallel.h"
-#include "database_entries.h"
 
 namespace gtbow {
 

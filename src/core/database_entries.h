@@ -18,7 +18,7 @@ inline constexpr char kDatabaseMagic[8] = {'G', 'T', 'B', 'W', 'D', 'B', '\0', '
 // 2: packed 8-byte entries in a framed file. 3: compact or precise entries, a header with its
 // own checksum, entries at an aligned offset for memory mapping, a checksum per 64 MB chunk.
 inline constexpr uint32_t kDatabaseVersion = 3;
-inline constexpr size_t kFixedHeader = 32;           // magic, version, entry size, two sizes
+inline constexpr size_t kFixedHeader = 32;  // magic, version, entry size, two sizes
 inline constexpr size_t kEntriesAlignment = 64;
 inline constexpr size_t kChecksumChunk = size_t{64} << 20;
 inline constexpr float kTwoPi = static_cast<float>(2.0 * M_PI);

@@ -10,10 +10,10 @@
 #include <stdexcept>
 #include <type_traits>
 
+#include "database_entries.h"
 #include "ground_texture_bow/core/binary_io.h"
 #include "ground_texture_bow/core/file_util.h"
 #include "ground_texture_bow/core/parallel.h"
-#include "database_entries.h"
 
 namespace gtbow {
 namespace {
@@ -31,7 +31,9 @@ void WriteEntries(const PostingIndex<E>& index, Out&& out) {
 // The index's entries, written in chunks of kChecksumChunk bytes whose checksums are kept.
 class ChunkedEntryWriter {
  public:
-  explicit ChunkedEntryWriter(AtomicFileWriter* file) : file_(file) { buf_.reserve(kChecksumChunk); }
+  explicit ChunkedEntryWriter(AtomicFileWriter* file) : file_(file) {
+    buf_.reserve(kChecksumChunk);
+  }
   void operator()(const void* data, size_t size) {
     const char* p = Bytes(data);
     while (size > 0) {
@@ -111,13 +113,15 @@ std::string BowDatabase::Serialize() const {
   return out;
 }
 
-void BowDatabase::SerializeTo(const std::function<void(uint64_t size)>& begin,
-                              const std::function<void(const void* data, size_t size)>& write) const {
+void BowDatabase::SerializeTo(
+    const std::function<void(uint64_t size)>& begin,
+    const std::function<void(const void* data, size_t size)>& write) const {
   std::shared_lock<std::shared_mutex> lock(mutex_);
   uint64_t entries_bytes = 0;
   const std::string header =
-      compact_ ? SerializeHeader(*compact_, num_rows_, fingerprint_, options_, removed_, &entries_bytes)
-               : SerializeHeader(*precise_, num_rows_, fingerprint_, options_, removed_, &entries_bytes);
+      compact_
+          ? SerializeHeader(*compact_, num_rows_, fingerprint_, options_, removed_, &entries_bytes)
+          : SerializeHeader(*precise_, num_rows_, fingerprint_, options_, removed_, &entries_bytes);
   const uint64_t hs = header.size();
   begin(8 + hs + entries_bytes);
   write(&hs, 8);
@@ -146,8 +150,9 @@ void BowDatabase::Save(const std::filesystem::path& path) const {
   uint64_t entries_bytes = 0;
   const uint32_t entry_size = compact_ ? sizeof(CompactEntry) : sizeof(PreciseEntry);
   const std::string header =
-      compact_ ? SerializeHeader(*compact_, num_rows_, fingerprint_, options_, removed_, &entries_bytes)
-               : SerializeHeader(*precise_, num_rows_, fingerprint_, options_, removed_, &entries_bytes);
+      compact_
+          ? SerializeHeader(*compact_, num_rows_, fingerprint_, options_, removed_, &entries_bytes)
+          : SerializeHeader(*precise_, num_rows_, fingerprint_, options_, removed_, &entries_bytes);
   std::string head(kFixedHeader, '\0');
   std::memcpy(&head[0], kDatabaseMagic, 8);
   std::memcpy(&head[8], &kDatabaseVersion, 4);
@@ -181,7 +186,8 @@ void BowDatabase::Load(const std::filesystem::path& path, int threads) {
   const char* d = map->data();
   const size_t size = map->size();
   auto fail = [&src](const std::string& what) { throw std::runtime_error(src + ": " + what); };
-  if (size < kFixedHeader + 8) fail("not a database file (too short: " + std::to_string(size) + " bytes)");
+  if (size < kFixedHeader + 8)
+    fail("not a database file (too short: " + std::to_string(size) + " bytes)");
   if (std::memcmp(d, kDatabaseMagic, 8) != 0) fail("not a database file (wrong magic number)");
   uint32_t version, entry_size;
   std::memcpy(&version, d + 8, 4);
@@ -196,7 +202,8 @@ void BowDatabase::Load(const std::filesystem::path& path, int threads) {
   if (Checksum64(d, kFixedHeader + hs) != Get64(d + kFixedHeader + hs)) {
     fail("database file is corrupt (header checksum mismatch)");
   }
-  const uint64_t at = (kFixedHeader + hs + 8 + kEntriesAlignment - 1) / kEntriesAlignment * kEntriesAlignment;
+  const uint64_t at =
+      (kFixedHeader + hs + 8 + kEntriesAlignment - 1) / kEntriesAlignment * kEntriesAlignment;
   const uint64_t n_chunks = (entries_bytes + kChecksumChunk - 1) / kChecksumChunk;
   if (entries_bytes > size || at > size - entries_bytes ||
       size - at - entries_bytes != n_chunks * 8 + 8) {
@@ -240,8 +247,8 @@ void BowDatabase::Attach(const char* header, size_t header_size, const char* ent
   const uint64_t fp = r.Get<uint64_t>();
   if (fp != fingerprint_) r.Fail("database was built with a different vocabulary");
   if (rows != num_rows_) {
-    r.Fail("database has " + std::to_string(rows) + " rows, this vocabulary and size binning give " +
-           std::to_string(num_rows_));
+    r.Fail("database has " + std::to_string(rows) +
+           " rows, this vocabulary and size binning give " + std::to_string(num_rows_));
   }
   BowOptions o;
   o.size_binning = static_cast<SizeBinning>(r.Get<uint8_t>());
@@ -270,11 +277,13 @@ void BowDatabase::Attach(const char* header, size_t header_size, const char* ent
   if (count.size() != index.size()) r.Fail("row table is inconsistent");
   uint64_t sum = 0;
   for (size_t n = 0; n < index.size(); ++n) {
-    if (index[n] >= num_rows_ || (n > 0 && index[n] <= index[n - 1])) r.Fail("row index out of order");
+    if (index[n] >= num_rows_ || (n > 0 && index[n] <= index[n - 1]))
+      r.Fail("row index out of order");
     if (count[n] == 0) r.Fail("empty row in the row table");
     sum += count[n];
   }
-  if (sum != total || total * entry_size != entries_size) r.Fail("entry count does not match the rows");
+  if (sum != total || total * entry_size != entries_size)
+    r.Fail("entry count does not match the rows");
   // Rows point into the entries block; an entry's image id is checked where it is read (a
   // query only visits ids below the image count), so the block is not scanned here.
   auto attach = [&](auto* fresh) {

@@ -10,10 +10,10 @@
 #include <stdexcept>
 #include <type_traits>
 
+#include "database_entries.h"
 #include "ground_texture_bow/core/binary_io.h"
 #include "ground_texture_bow/core/file_util.h"
 #include "ground_texture_bow/core/parallel.h"
-#include "database_entries.h"
 
 namespace gtbow {
 namespace {
@@ -73,7 +73,6 @@ struct Segment {
   uint32_t kb, ke;  // the query keypoint entries on this row
   float wq;         // the query's weight on this row
 };
-
 
 struct QueryPlan {
   int bins;
@@ -205,7 +204,8 @@ std::vector<QueryResult> QueryIndex(const PostingIndex<E>& index, uint32_t num_r
     while (k < q.keypoints.size() && q.keypoints[k].row == e.row) ++k;
     for (size_t i = kb; i < k; ++i) p.qwc[i] = e.weight * q.keypoints[i].contribution;
     index.ForEachSegment(e.row, [&](const E* data, size_t count) {
-      segs.push_back({data, data + count, static_cast<uint32_t>(kb), static_cast<uint32_t>(k), e.weight});
+      segs.push_back(
+          {data, data + count, static_cast<uint32_t>(kb), static_cast<uint32_t>(k), e.weight});
     });
   }
 
@@ -246,7 +246,8 @@ std::vector<QueryResult> QueryIndex(const PostingIndex<E>& index, uint32_t num_r
           if (p.ov && p.bin_of[static_cast<uint8_t>(y->angle() - p.qang[i])] != r.orientation_bin) {
             continue;
           }
-          r.matches.push_back({q.keypoints[i].keypoint, y->keypoint(), w * q.keypoints[i].contribution});
+          r.matches.push_back(
+              {q.keypoints[i].keypoint, y->keypoint(), w * q.keypoints[i].contribution});
         }
       }
     }
@@ -260,9 +261,11 @@ std::vector<QueryResult> BowDatabase::Query(const BowVector& q, size_t top_n,
                                             bool with_matches) const {
   std::shared_lock<std::shared_mutex> lock(mutex_);
   if (compact_) {
-    return QueryIndex(*compact_, num_rows_, options_, removed_, query_threads_, q, top_n, with_matches);
+    return QueryIndex(*compact_, num_rows_, options_, removed_, query_threads_, q, top_n,
+                      with_matches);
   }
-  return QueryIndex(*precise_, num_rows_, options_, removed_, query_threads_, q, top_n, with_matches);
+  return QueryIndex(*precise_, num_rows_, options_, removed_, query_threads_, q, top_n,
+                    with_matches);
 }
 
 }  // namespace gtbow

@@ -13,7 +13,8 @@
 namespace gtbow {
 
 namespace {
-constexpr EnumName<FeatureType> kFeatureTypes[] = {{"orb", FeatureType::kOrb}, {"sift", FeatureType::kSift}};
+constexpr EnumName<FeatureType> kFeatureTypes[] = {{"orb", FeatureType::kOrb},
+                                                   {"sift", FeatureType::kSift}};
 constexpr EnumName<Contrast> kContrasts[] = {
     {"none", Contrast::kNone}, {"normalize", Contrast::kNormalize}, {"clahe", Contrast::kClahe}};
 }  // namespace
@@ -22,7 +23,9 @@ FeatureType ParseFeatureType(const std::string& name) {
   return ParseEnumName(name, "feature type", kFeatureTypes);
 }
 std::string FeatureTypeName(FeatureType type) { return EnumValueName(type, kFeatureTypes); }
-Contrast ParseContrast(const std::string& name) { return ParseEnumName(name, "contrast", kContrasts); }
+Contrast ParseContrast(const std::string& name) {
+  return ParseEnumName(name, "contrast", kContrasts);
+}
 std::string ContrastName(Contrast c) { return EnumValueName(c, kContrasts); }
 
 bool IsPlainExtractor(const FeatureOptions& o) {
@@ -43,13 +46,16 @@ void FeatureOptions::Check() const {
   need(orb_patch_size >= 2, "orb_patch_size must be >= 2");
   need(orb_fast_threshold >= 0, "orb_fast_threshold must be >= 0");
   need(contrast_target > 0 && std::isfinite(contrast_target), "contrast_target must be positive");
-  need(contrast_max_gain >= 1 && std::isfinite(contrast_max_gain), "contrast_max_gain must be >= 1");
+  need(contrast_max_gain >= 1 && std::isfinite(contrast_max_gain),
+       "contrast_max_gain must be >= 1");
   need(clahe_clip > 0 && std::isfinite(clahe_clip), "clahe_clip must be positive");
   need(clahe_tiles >= 1 && clahe_tiles <= 64, "clahe_tiles must be in 1..64");
   need(orb_min_fast_threshold >= 0 && orb_min_fast_threshold <= orb_fast_threshold,
        "orb_min_fast_threshold must be in 0..orb_fast_threshold");
-  need((grid_cols == 0) == (grid_rows == 0), "grid_cols and grid_rows must both be 0 (off) or both positive");
-  need(grid_cols >= 0 && grid_cols <= 64 && grid_rows >= 0 && grid_rows <= 64, "grid_cols and grid_rows must be in 0..64");
+  need((grid_cols == 0) == (grid_rows == 0),
+       "grid_cols and grid_rows must both be 0 (off) or both positive");
+  need(grid_cols >= 0 && grid_cols <= 64 && grid_rows >= 0 && grid_rows <= 64,
+       "grid_cols and grid_rows must be in 0..64");
   need(grid_oversample >= 1 && grid_oversample <= 16, "grid_oversample must be in [1, 16]");
   need(type == FeatureType::kOrb || IsPlainExtractor(*this),
        "contrast, orb_min_fast_threshold and the grid are implemented for ORB only");
@@ -64,7 +70,8 @@ FeatureExtractor::FeatureExtractor(const FeatureOptions& options) : options_(opt
   if (options_.type == FeatureType::kOrb) {
     auto orb = [&](int n, int threshold) -> cv::Ptr<cv::Feature2D> {
       return cv::ORB::create(n, options_.orb_scale_factor, options_.orb_num_levels,
-                             options_.orb_edge_threshold, options_.orb_first_level, options_.orb_wta_k,
+                             options_.orb_edge_threshold, options_.orb_first_level,
+                             options_.orb_wta_k,
                              options_.orb_fast_score ? cv::ORB::FAST_SCORE : cv::ORB::HARRIS_SCORE,
                              options_.orb_patch_size, threshold);
     };
@@ -133,7 +140,8 @@ ImageFeatures FeatureExtractor::Extract(const cv::Mat& gray) const {
       bool short_cells = false;
       for (int cy = 0; cy < rows; ++cy) {
         for (int cx = 0; cx < cols; ++cx) {
-          if (2 * count[static_cast<size_t>(cy) * cols + cx] >= quota) continue;  // under half its share
+          if (2 * count[static_cast<size_t>(cy) * cols + cx] >= quota)
+            continue;  // under half its share
           short_cells = true;
           const int x0 = cx * image.cols / cols, x1 = (cx + 1) * image.cols / cols;
           const int y0 = cy * image.rows / rows, y1 = (cy + 1) * image.rows / rows;
@@ -191,7 +199,8 @@ ImageFeatures FeatureExtractor::Extract(const cv::Mat& gray) const {
     for (size_t i : chosen) kept.push_back(kps[i]);
     if (!all_desc.empty()) {
       desc.create(static_cast<int>(chosen.size()), all_desc.cols, all_desc.type());
-      for (size_t j = 0; j < chosen.size(); ++j) all_desc.row(static_cast<int>(chosen[j])).copyTo(desc.row(static_cast<int>(j)));
+      for (size_t j = 0; j < chosen.size(); ++j)
+        all_desc.row(static_cast<int>(chosen[j])).copyTo(desc.row(static_cast<int>(j)));
       kps.swap(kept);
     } else {
       kps.swap(kept);
@@ -241,7 +250,8 @@ cv::Mat FeatureExtractor::Preprocess(const cv::Mat& gray) const {
       std::vector<uint32_t> hist(kBins, 0);
       for (int r = 0; r < hp.rows; ++r) {
         const float* p = hp.ptr<float>(r);
-        for (int c = 0; c < hp.cols; ++c) ++hist[std::min(kBins - 1, static_cast<int>(p[c] * 8.0f))];
+        for (int c = 0; c < hp.cols; ++c)
+          ++hist[std::min(kBins - 1, static_cast<int>(p[c] * 8.0f))];
       }
       const size_t half = hp.total() / 2;
       size_t acc = 0;
@@ -258,7 +268,8 @@ cv::Mat FeatureExtractor::Preprocess(const cv::Mat& gray) const {
     }
     case Contrast::kClahe: {
       cv::Mat out;
-      cv::createCLAHE(options_.clahe_clip, cv::Size(options_.clahe_tiles, options_.clahe_tiles))->apply(gray, out);
+      cv::createCLAHE(options_.clahe_clip, cv::Size(options_.clahe_tiles, options_.clahe_tiles))
+          ->apply(gray, out);
       return out;
     }
   }

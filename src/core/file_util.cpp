@@ -234,8 +234,8 @@ fs::path StageDirectory(const fs::path& target_in, bool force) {
   const fs::path staging =
       parent / ("." + target.filename().string() + ".staging-" + RandomSuffix());
   if (!fs::create_directory(staging, ec) || ec) {
-    throw std::runtime_error("cannot write to '" + parent.string() + "': " +
-                             (ec ? ec.message() : std::string("staging directory exists")));
+    throw std::runtime_error("cannot write to '" + parent.string() +
+                             "': " + (ec ? ec.message() : std::string("staging directory exists")));
   }
   return staging;
 }

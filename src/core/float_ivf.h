@@ -12,11 +12,11 @@
 
 #include <opencv2/core.hpp>
 
+#include "binary_ivf.h"
+#include "byte_distance.h"
 #include "ground_texture_bow/core/binary_io.h"
 #include "ground_texture_bow/core/parallel.h"
 #include "ground_texture_bow/core/vocabulary.h"
-#include "binary_ivf.h"
-#include "byte_distance.h"
 #include "vocabulary_internal.h"
 
 namespace gtbow {
@@ -44,8 +44,10 @@ class IvfIndex {
       ParallelParts(static_cast<size_t>(v), ThreadCount(threads), 64, [&](size_t b, size_t e, int) {
         std::vector<float> dist(nlist);
         for (size_t i = b; i < e; ++i) {
-          SquaredDistances(words.ptr<float>(static_cast<int>(i)), coarse_.ptr<float>(), nlist, d_, dist.data());
-          label[i] = static_cast<uint32_t>(std::min_element(dist.begin(), dist.end()) - dist.begin());
+          SquaredDistances(words.ptr<float>(static_cast<int>(i)), coarse_.ptr<float>(), nlist, d_,
+                           dist.data());
+          label[i] =
+              static_cast<uint32_t>(std::min_element(dist.begin(), dist.end()) - dist.begin());
         }
       });
       UpdateCentroids(words, label, &coarse_, rng, 1);
@@ -71,7 +73,8 @@ class IvfIndex {
     ReadIvfLists(r, nlist, words.rows, "IVF", &offsets_, &ids_);
     coarse_ = cv::Mat(nlist, d_, CV_32F, coarse.data()).clone();
     vectors_.create(words.rows, d_, CV_32F);
-    for (int i = 0; i < words.rows; ++i) words.row(static_cast<int>(ids_[i])).copyTo(vectors_.row(i));
+    for (int i = 0; i < words.rows; ++i)
+      words.row(static_cast<int>(ids_[i])).copyTo(vectors_.row(i));
     if (bytes && d_ % 2 == 0) MakeByteCopies();  // packed pairs of dimensions
   }
 
@@ -155,7 +158,8 @@ class IvfIndex {
                                   std::numeric_limits<int32_t>::max(), cid.data(), cd.data());
       // The set of the nprobe nearest lists (their order does not matter: lists are visited
       // in index order below). Keys pack distance and list so that ties resolve by index.
-      for (int c = 0; c < nlist; ++c) key[c] = (static_cast<uint64_t>(cd[c]) << 32) | static_cast<uint32_t>(c);
+      for (int c = 0; c < nlist; ++c)
+        key[c] = (static_cast<uint64_t>(cd[c]) << 32) | static_cast<uint32_t>(c);
       std::nth_element(key.begin(), key.begin() + (nprobe - 1), key.end());
       for (int p = 0; p < nprobe; ++p) visitors[static_cast<uint32_t>(key[p])].push_back(i);
     }
@@ -169,8 +173,8 @@ class IvfIndex {
       for (int i : visitors[list]) {
         Cand* best = cand.data() + static_cast<size_t>(i) * k;  // sorted by (dist, pos)
         const int found = PackedSquaredDistancesBelow(
-            pq.data() + packed_size * i, packed_.data() + packed_offsets_[list], static_cast<int>(e - b), d_,
-            best[k - 1].dist, row.data(), dist.data());
+            pq.data() + packed_size * i, packed_.data() + packed_offsets_[list],
+            static_cast<int>(e - b), d_, best[k - 1].dist, row.data(), dist.data());
         for (int j = 0; j < found; ++j) {
           if (dist[j] >= best[k - 1].dist) continue;  // ties: the earlier row stays
           const Cand c{dist[j], b + row[j]};
@@ -200,13 +204,16 @@ class IvfIndex {
       }
       std::sort(hits.begin(), hits.end(), Closer);
       for (int j = 0; j < r && j < static_cast<int>(hits.size()); ++j) {
-        (*out)[static_cast<size_t>(i) * r + j] = {hits[j].word, std::sqrt(std::max(0.0f, hits[j].distance))};
+        (*out)[static_cast<size_t>(i) * r + j] = {hits[j].word,
+                                                  std::sqrt(std::max(0.0f, hits[j].distance))};
       }
     }
   }
 
  private:
-  static uint8_t ToByte(float x) { return static_cast<uint8_t>(std::clamp(std::lround(x), 0L, 255L)); }
+  static uint8_t ToByte(float x) {
+    return static_cast<uint8_t>(std::clamp(std::lround(x), 0L, 255L));
+  }
   void MakeByteCopies() {
     std::vector<uint8_t> rows(vectors_.total());
     const float* v = vectors_.ptr<float>();
@@ -231,13 +238,13 @@ class IvfIndex {
   }
 
   int d_;
-  cv::Mat coarse_;                 // nlist x d centres
-  std::vector<uint32_t> offsets_;  // list c holds rows [offsets_[c], offsets_[c + 1])
-  std::vector<uint32_t> ids_;      // word id of each row of vectors_
-  cv::Mat vectors_;                // V x d word vectors grouped by list
-  std::vector<int16_t> packed_;          // vectors_ rounded to bytes, packed (l2_bytes only)
-  std::vector<size_t> packed_offsets_;   // list c starts at packed_[packed_offsets_[c]]
-  std::vector<int16_t> coarse_packed_;   // coarse_ rounded to bytes, packed (l2_bytes only)
+  cv::Mat coarse_;                      // nlist x d centres
+  std::vector<uint32_t> offsets_;       // list c holds rows [offsets_[c], offsets_[c + 1])
+  std::vector<uint32_t> ids_;           // word id of each row of vectors_
+  cv::Mat vectors_;                     // V x d word vectors grouped by list
+  std::vector<int16_t> packed_;         // vectors_ rounded to bytes, packed (l2_bytes only)
+  std::vector<size_t> packed_offsets_;  // list c starts at packed_[packed_offsets_[c]]
+  std::vector<int16_t> coarse_packed_;  // coarse_ rounded to bytes, packed (l2_bytes only)
 };
 
 }  // namespace vocabulary_internal

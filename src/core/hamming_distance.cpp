@@ -12,7 +12,8 @@
 namespace gtbow {
 
 void PackBinaryRows(const uint8_t* rows, int n, int bytes, std::vector<uint64_t>* out) {
-  if (bytes % 8 != 0) throw std::invalid_argument("PackBinaryRows: descriptor bytes must be a multiple of 8");
+  if (bytes % 8 != 0)
+    throw std::invalid_argument("PackBinaryRows: descriptor bytes must be a multiple of 8");
   const int chunks = bytes / 8;
   const int blocks = (n + kBinaryBlockRows - 1) / kBinaryBlockRows;
   const size_t base = out->size();
@@ -38,7 +39,8 @@ uint32_t HammingDistance(const uint8_t* a, const uint8_t* b, int bytes) {
     std::memcpy(&y, b + k, 8);
     s += static_cast<uint32_t>(__builtin_popcountll(x ^ y));
   }
-  for (; k < bytes; ++k) s += static_cast<uint32_t>(__builtin_popcount(static_cast<unsigned>(a[k] ^ b[k])));
+  for (; k < bytes; ++k)
+    s += static_cast<uint32_t>(__builtin_popcount(static_cast<unsigned>(a[k] ^ b[k])));
   return s;
 }
 
@@ -48,7 +50,8 @@ int PortableBelow(const uint64_t* q, const uint64_t* blocks, int n, int chunks, 
                   uint32_t* index, uint32_t* distance) {
   int m = 0;
   for (int i = 0; i < n; ++i) {
-    const uint64_t* blk = blocks + static_cast<size_t>(i / kBinaryBlockRows) * kBinaryBlockRows * chunks;
+    const uint64_t* blk =
+        blocks + static_cast<size_t>(i / kBinaryBlockRows) * kBinaryBlockRows * chunks;
     const int lane = i % kBinaryBlockRows;
     uint32_t s = 0;
     for (int k = 0; k < chunks; ++k) {
@@ -82,9 +85,11 @@ __attribute__((target("avx512f,avx512vpopcntdq"), always_inline)) inline void Em
 
 // One block of 8 rows per register: per chunk an xor with the broadcast query chunk, a vector
 // popcount and an add; the 8 lanes end up holding the 8 rows' distances.
-__attribute__((target("avx512f,avx512vpopcntdq"))) int Avx512Below(
-    const uint64_t* q, const uint64_t* blocks, int n, int chunks, uint32_t threshold, uint32_t* index,
-    uint32_t* distance) {
+__attribute__((target("avx512f,avx512vpopcntdq"))) int Avx512Below(const uint64_t* q,
+                                                                   const uint64_t* blocks, int n,
+                                                                   int chunks, uint32_t threshold,
+                                                                   uint32_t* index,
+                                                                   uint32_t* distance) {
   const int nblocks = (n + kBinaryBlockRows - 1) / kBinaryBlockRows;
   const size_t block = static_cast<size_t>(kBinaryBlockRows) * chunks;
   const __m512i t = _mm512_set1_epi64(static_cast<long long>(threshold));
@@ -110,7 +115,8 @@ __attribute__((target("avx512f,avx512vpopcntdq"))) int Avx512Below(
     __m512i v = _mm512_setzero_si512();
     for (int k = 0; k < chunks; ++k) {
       const __m512i qk = _mm512_set1_epi64(static_cast<long long>(q[k]));
-      v = _mm512_add_epi64(v, _mm512_popcnt_epi64(_mm512_xor_si512(_mm512_loadu_si512(b + 8 * k), qk)));
+      v = _mm512_add_epi64(
+          v, _mm512_popcnt_epi64(_mm512_xor_si512(_mm512_loadu_si512(b + 8 * k), qk)));
     }
     Emit(v, t, bi * kBinaryBlockRows, n, index, distance, &m);
   }
@@ -120,7 +126,8 @@ __attribute__((target("avx512f,avx512vpopcntdq"))) int Avx512Below(
 
 HammingKernel BestKernel() {
   const char* cap = std::getenv("GTBOW_SIMD");
-  const bool capped = cap != nullptr && (std::strcmp(cap, "portable") == 0 || std::strcmp(cap, "avx2") == 0);
+  const bool capped =
+      cap != nullptr && (std::strcmp(cap, "portable") == 0 || std::strcmp(cap, "avx2") == 0);
   if (!capped && HammingKernelSupported(HammingKernel::kAvx512)) return HammingKernel::kAvx512;
   return HammingKernel::kPortable;
 }
@@ -129,20 +136,24 @@ HammingKernel BestKernel() {
 
 bool HammingKernelSupported(HammingKernel kernel) {
   switch (kernel) {
-    case HammingKernel::kPortable: return true;
+    case HammingKernel::kPortable:
+      return true;
 #ifdef GTBOW_HAVE_AVX512_POPCNT_KERNEL
     case HammingKernel::kAvx512:
       return __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512vpopcntdq");
 #endif
-    default: return false;
+    default:
+      return false;
   }
 }
 
-int HammingBelowUsing(HammingKernel kernel, const uint64_t* q, const uint64_t* blocks, int n, int chunks,
-                      uint32_t threshold, uint32_t* index, uint32_t* distance) {
-  if (!HammingKernelSupported(kernel)) throw std::invalid_argument("Hamming kernel not supported by this CPU");
+int HammingBelowUsing(HammingKernel kernel, const uint64_t* q, const uint64_t* blocks, int n,
+                      int chunks, uint32_t threshold, uint32_t* index, uint32_t* distance) {
+  if (!HammingKernelSupported(kernel))
+    throw std::invalid_argument("Hamming kernel not supported by this CPU");
 #ifdef GTBOW_HAVE_AVX512_POPCNT_KERNEL
-  if (kernel == HammingKernel::kAvx512) return Avx512Below(q, blocks, n, chunks, threshold, index, distance);
+  if (kernel == HammingKernel::kAvx512)
+    return Avx512Below(q, blocks, n, chunks, threshold, index, distance);
 #endif
   return PortableBelow(q, blocks, n, chunks, threshold, index, distance);
 }

@@ -40,11 +40,10 @@ Localizer::Localizer(std::shared_ptr<Vocabulary> vocabulary, std::string vocabul
   CheckVocabularyExtractor(*vocabulary_, vocabulary_path_, options_.retrieval.features);
   const VocabularyOptions& vo = options_.retrieval.vocabulary;
   if (vo.kind != vocabulary_->kind() || vo.metric != vocabulary_->metric()) {
-    throw std::invalid_argument("the preset asks for a " + VocabularyKindName(vo.kind) + "/" +
-                                MetricName(vo.metric) + " vocabulary (vocabulary.kind, " +
-                                "vocabulary.metric), " + vocabulary_path_ + " is " +
-                                VocabularyKindName(vocabulary_->kind()) + "/" +
-                                MetricName(vocabulary_->metric()));
+    throw std::invalid_argument(
+        "the preset asks for a " + VocabularyKindName(vo.kind) + "/" + MetricName(vo.metric) +
+        " vocabulary (vocabulary.kind, " + "vocabulary.metric), " + vocabulary_path_ + " is " +
+        VocabularyKindName(vocabulary_->kind()) + "/" + MetricName(vocabulary_->metric()));
   }
   vocabulary_->set_search(vo.ann, vo.nprobe);
   vocabulary_->set_checks(vo.checks);
@@ -131,8 +130,8 @@ std::vector<Candidate> Localizer::QueryLocked(const BowVector& bow,
         c.relative.reason = "the images differ in size";
       } else {
         const auto matches = MatchesOf(r, keypoints, kf.keypoints);
-        c.relative = EstimatePose(matches, Pose2D{}, GeometryOf(width, height),
-                                  options_.localization.pose);
+        c.relative =
+            EstimatePose(matches, Pose2D{}, GeometryOf(width, height), options_.localization.pose);
         c.verified = c.relative.success;
         for (int i : c.relative.inlier_indices) c.inliers.push_back(matches[i].query);
       }
@@ -184,7 +183,9 @@ Localization Localizer::Localize(const ProcessedImage& image) const {
   }
   // The evaluation's own verification (pose.cpp), over this map's keyframes.
   MapAccess map;
-  map.keypoints = [this](uint32_t id) -> const std::vector<Keypoint>& { return keyframes_.at(id).keypoints; };
+  map.keypoints = [this](uint32_t id) -> const std::vector<Keypoint>& {
+    return keyframes_.at(id).keypoints;
+  };
   map.pose = [this](uint32_t id) { return keyframes_.at(id).map_from_camera; };
   map.unusable = [&](uint32_t id) -> std::string {
     const Keyframe& kf = keyframes_.at(id);
@@ -219,8 +220,10 @@ void PutKeyframe(BinaryWriter* w, const Keyframe& k) {
 }
 
 uint64_t KeyframeBytes(const Keyframe& k) {
-  const uint64_t descriptors = k.descriptors.empty() ? 0 : k.descriptors.total() * k.descriptors.elemSize();
-  return 8 + 1 + 3 * 8 + 2 * 4 + (8 + k.keypoints.size() * sizeof(Keypoint)) + 3 * 4 + (8 + descriptors);
+  const uint64_t descriptors =
+      k.descriptors.empty() ? 0 : k.descriptors.total() * k.descriptors.elemSize();
+  return 8 + 1 + 3 * 8 + 2 * 4 + (8 + k.keypoints.size() * sizeof(Keypoint)) + 3 * 4 +
+         (8 + descriptors);
 }
 
 }  // namespace
@@ -286,7 +289,8 @@ void Localizer::Load(const std::filesystem::path& path) {
       r.Fail(std::string("the map's retrieval options cannot be read: ") + e.what());
     }
     if (!diff.empty()) {
-      r.Fail("the map was built with other retrieval options (another preset or extractor): " + diff);
+      r.Fail("the map was built with other retrieval options (another preset or extractor): " +
+             diff);
     }
   }
   const double mpp = r.Get<double>();

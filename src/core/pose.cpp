@@ -36,8 +36,8 @@ class Sampler {
 };
 
 // Weighted least-squares rigid transform (2-D Procrustes) over `idx`; centred coordinates.
-Rigid2D FitRigid(const std::vector<Vec2>& q, const std::vector<Vec2>& d, const std::vector<double>& w,
-                 const std::vector<int>& idx) {
+Rigid2D FitRigid(const std::vector<Vec2>& q, const std::vector<Vec2>& d,
+                 const std::vector<double>& w, const std::vector<int>& idx) {
   double sw = 0.0;
   Vec2 qm, dm;
   for (int i : idx) {
@@ -89,7 +89,8 @@ void PoseOptions::Check() const {
   };
   need(max_iterations >= 1, "max_iterations must be >= 1");
   need(confidence > 0.0 && confidence < 1.0, "confidence must be in (0, 1)");
-  need(inlier_threshold > 0.0 && std::isfinite(inlier_threshold), "inlier_threshold must be positive");
+  need(inlier_threshold > 0.0 && std::isfinite(inlier_threshold),
+       "inlier_threshold must be positive");
   need(min_inliers >= 2, "min_inliers must be >= 2");
   need(refine_iterations >= 0, "refine_iterations must be >= 0");
 }
@@ -105,7 +106,8 @@ PoseEstimate EstimatePose(const std::vector<PointMatch>& matches, const Pose2D& 
   PoseEstimate est;
   const int n = static_cast<int>(matches.size());
   if (n < o.min_inliers) {
-    est.reason = std::to_string(n) + " matches, fewer than min_inliers = " + std::to_string(o.min_inliers);
+    est.reason =
+        std::to_string(n) + " matches, fewer than min_inliers = " + std::to_string(o.min_inliers);
     return est;
   }
   const Vec2 c{(geometry.width - 1) / 2.0, (geometry.height - 1) / 2.0};
@@ -181,8 +183,8 @@ PoseEstimate EstimatePose(const std::vector<PointMatch>& matches, const Pose2D& 
   }
   est.inliers = static_cast<int>(inl.size());
   if (est.inliers < o.min_inliers) {
-    est.reason = std::to_string(est.inliers) + " inliers, fewer than min_inliers = " +
-                 std::to_string(o.min_inliers);
+    est.reason = std::to_string(est.inliers) +
+                 " inliers, fewer than min_inliers = " + std::to_string(o.min_inliers);
     return est;
   }
   double sum2 = 0.0;
@@ -252,7 +254,8 @@ std::vector<PointMatch> MatchesOf(const QueryResult& result,
       weight += pairs[j].weight;
     }
     i = j;
-    if (p.query_keypoint >= query_keypoints.size() || p.database_keypoint >= database_keypoints.size()) {
+    if (p.query_keypoint >= query_keypoints.size() ||
+        p.database_keypoint >= database_keypoints.size()) {
       throw std::out_of_range("MatchesOf: keypoint id beyond the keypoints given");
     }
     if (!(weight > 0.0)) continue;
@@ -295,7 +298,8 @@ Localization VerifyCandidates(const std::vector<QueryResult>& results, const Bow
       }
       why = est.reason;
     }
-    if (rank < 3) reasons += (reasons.empty() ? "" : "; ") + ("image " + std::to_string(r.image) + ": " + why);
+    if (rank < 3)
+      reasons += (reasons.empty() ? "" : "; ") + ("image " + std::to_string(r.image) + ": " + why);
   }
   loc.reason = "none of " + std::to_string(n) + " candidates verified (" + reasons +
                (n > 3 ? "; ..." : "") + ")";

@@ -49,10 +49,10 @@ void ProgressBar::Draw(bool final) {
   for (int i = 0; i < kWidth; ++i) bar[i] = i < filled ? '=' : (i == filled ? '>' : ' ');
   bar[kWidth] = '\0';
   const double shown = final ? elapsed : eta;
-  std::fprintf(out_, "%s%-12s [%s] %zu/%zu %3.0f%% %7.1f/s %s %02d:%02d%s",
-               tty_ ? "\r" : "", label_.c_str(), bar, done_, total_, 100.0 * frac, rate,
-               final ? "took" : "ETA", static_cast<int>(shown) / 60,
-               static_cast<int>(shown) % 60, (final || !tty_) ? "\n" : "");
+  std::fprintf(out_, "%s%-12s [%s] %zu/%zu %3.0f%% %7.1f/s %s %02d:%02d%s", tty_ ? "\r" : "",
+               label_.c_str(), bar, done_, total_, 100.0 * frac, rate, final ? "took" : "ETA",
+               static_cast<int>(shown) / 60, static_cast<int>(shown) % 60,
+               (final || !tty_) ? "\n" : "");
   std::fflush(out_);
 }
 

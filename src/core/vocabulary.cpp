@@ -26,12 +26,15 @@ constexpr uint32_t kOldestVocabularyVersion = 2;
 
 namespace {
 constexpr EnumName<AnnIndex> kAnnIndexes[] = {{"flann", AnnIndex::kFlann}, {"ivf", AnnIndex::kIvf}};
-constexpr EnumName<VocabularyKind> kKinds[] = {{"akm", VocabularyKind::kAkm}, {"hkm", VocabularyKind::kHkm}};
+constexpr EnumName<VocabularyKind> kKinds[] = {{"akm", VocabularyKind::kAkm},
+                                               {"hkm", VocabularyKind::kHkm}};
 constexpr EnumName<Metric> kMetrics[] = {
     {"l2_bytes", Metric::kL2Bytes}, {"hamming", Metric::kHamming}, {"l2", Metric::kL2}};
 }  // namespace
 
-AnnIndex ParseAnnIndex(const std::string& name) { return ParseEnumName(name, "ann index", kAnnIndexes); }
+AnnIndex ParseAnnIndex(const std::string& name) {
+  return ParseEnumName(name, "ann index", kAnnIndexes);
+}
 std::string AnnIndexName(AnnIndex index) { return EnumValueName(index, kAnnIndexes); }
 VocabularyKind ParseVocabularyKind(const std::string& name) {
   return ParseEnumName(name, "vocabulary kind", kKinds);
@@ -46,7 +49,8 @@ void VocabularyOptions::Check() const {
   };
   need(num_words >= 2, "num_words must be >= 2");
   need(kmeans_iterations >= 1, "kmeans_iterations must be >= 1");
-  need(kmeans_stop_fraction >= 0.0 && kmeans_stop_fraction < 1.0, "kmeans_stop_fraction must be in [0, 1)");
+  need(kmeans_stop_fraction >= 0.0 && kmeans_stop_fraction < 1.0,
+       "kmeans_stop_fraction must be in [0, 1)");
   need(kmeans_min_iterations >= 1, "kmeans_min_iterations must be >= 1");
   need(train_checks >= 0, "train_checks must be >= 0 (0: max(2000, V / 5))");
   need(train_nprobe >= 0, "train_nprobe must be >= 0 (0: all lists)");
@@ -67,7 +71,8 @@ std::unique_ptr<Vocabulary> TrainVocabulary(const VocabularyOptions& o, const cv
   }
   const cv::Mat data = ToSpace(descriptors, o.metric);
   std::unique_ptr<Vocabulary> vocab;
-  vocab = o.kind == VocabularyKind::kAkm ? TrainAkm(o, data, progress) : TrainHkm(o, data, progress);
+  vocab =
+      o.kind == VocabularyKind::kAkm ? TrainAkm(o, data, progress) : TrainHkm(o, data, progress);
   // idf = log(N / n_w) over the training images (paper §III: standard tf-idf).
   std::vector<WordHit> hits;
   vocab->Assign(descriptors, 1, &hits);
@@ -104,8 +109,8 @@ void Vocabulary::Save(const std::filesystem::path& path) const {
 }
 
 std::unique_ptr<Vocabulary> Vocabulary::Load(const std::filesystem::path& path) {
-  const FramedPayload payload =
-      ReadFramedFile(path, kVocabularyMagic, kOldestVocabularyVersion, kVocabularyVersion, "vocabulary");
+  const FramedPayload payload = ReadFramedFile(path, kVocabularyMagic, kOldestVocabularyVersion,
+                                               kVocabularyVersion, "vocabulary");
   BinaryReader r(payload.data(), payload.size(), path.string());
   const uint8_t kind = r.Get<uint8_t>(), metric = r.Get<uint8_t>();
   if (kind > 1 || metric > 2) r.Fail("unknown vocabulary kind or metric");

@@ -2,10 +2,10 @@
 // search (FLANN kd-forest, or the inverted files), their training and their file form.
 #include <atomic>
 
-#include "ground_texture_bow/core/parallel.h"
-#include "ground_texture_bow/core/progress.h"
 #include "binary_ivf.h"
 #include "float_ivf.h"
+#include "ground_texture_bow/core/parallel.h"
+#include "ground_texture_bow/core/progress.h"
 #include "vocabulary_internal.h"
 
 namespace gtbow {
@@ -61,7 +61,8 @@ class AkmVocabulary : public Vocabulary {
       }
     }
     if (ann_ == AnnIndex::kIvf && ivf_ && ivf_->bytes() && descriptors.type() == CV_8U) {
-      ivf_->SearchBytes(descriptors.isContinuous() ? descriptors : descriptors.clone(), r, nprobe_, out);
+      ivf_->SearchBytes(descriptors.isContinuous() ? descriptors : descriptors.clone(), r, nprobe_,
+                        out);
       return;
     }
     const cv::Mat q = ToSpace(descriptors, metric_);
@@ -138,7 +139,6 @@ class AkmVocabulary : public Vocabulary {
   }
 
  protected:
-
  private:
   void BuildIndex(uint64_t seed) {
     std::lock_guard<std::mutex> lock(FlannSeedMutex());
@@ -148,7 +148,8 @@ class AkmVocabulary : public Vocabulary {
       // k-means++ centres: FLANN's random chooser draws from std::random_device, which no
       // seed controls (searches then differed from run to run); k-means++ uses the seeded rand().
       index_ = std::make_unique<typename Space::FlannIndex>(
-          data, flann::HierarchicalClusteringIndexParams(32, flann::FLANN_CENTERS_KMEANSPP, trees_, 100));
+          data,
+          flann::HierarchicalClusteringIndexParams(32, flann::FLANN_CENTERS_KMEANSPP, trees_, 100));
     } else {
       index_ = std::make_unique<typename Space::FlannIndex>(data, flann::KDTreeIndexParams(trees_));
     }
@@ -163,8 +164,8 @@ class AkmVocabulary : public Vocabulary {
   mutable std::once_flag index_once_;
   AnnIndex ann_ = AnnIndex::kFlann;
   int nprobe_ = 8;
-  std::unique_ptr<IvfIndex> ivf_;          // float spaces
-  std::unique_ptr<BinaryIvfIndex> bivf_;   // Hamming
+  std::unique_ptr<IvfIndex> ivf_;         // float spaces
+  std::unique_ptr<BinaryIvfIndex> bivf_;  // Hamming
 };
 
 // Recomputes centroid c from its members: the mean (float) or the bitwise majority (binary).
@@ -221,7 +222,7 @@ void UpdateCentroids(const cv::Mat& data, const std::vector<uint32_t>& label, cv
 
 template <typename Space>
 std::unique_ptr<Vocabulary> TrainAkmIn(const VocabularyOptions& o, const cv::Mat& data,
-                                     bool progress) {
+                                       bool progress) {
   using E = typename Space::Element;
   const int v = o.num_words;
   if (data.rows < v) {
@@ -255,9 +256,11 @@ std::unique_ptr<Vocabulary> TrainAkmIn(const VocabularyOptions& o, const cv::Mat
     std::unique_ptr<AkmVocabulary<Space>> current;
     std::unique_ptr<BinaryIvfIndex> ivf;
     if (binary_ivf) {
-      ivf = std::make_unique<BinaryIvfIndex>(centroids, o.seed + static_cast<uint64_t>(it), threads);
+      ivf =
+          std::make_unique<BinaryIvfIndex>(centroids, o.seed + static_cast<uint64_t>(it), threads);
     } else {
-      current = std::make_unique<AkmVocabulary<Space>>(o.metric, centroids.clone(), o.num_trees, train_checks);
+      current = std::make_unique<AkmVocabulary<Space>>(o.metric, centroids.clone(), o.num_trees,
+                                                       train_checks);
     }
     std::atomic<size_t> changed{0};
     ParallelParts(static_cast<size_t>(data.rows), threads, 64, [&](size_t b, size_t e, int) {
@@ -278,7 +281,8 @@ std::unique_ptr<Vocabulary> TrainAkmIn(const VocabularyOptions& o, const cv::Mat
           // A descriptor keeps its centroid unless the search found a strictly closer one: an
           // approximate search must not move it back and forth between equally near words.
           if (old != std::numeric_limits<uint32_t>::max() && l != old &&
-              Space::Distance(rows.ptr<E>(static_cast<int>(i)), centroids.ptr<E>(static_cast<int>(old)),
+              Space::Distance(rows.ptr<E>(static_cast<int>(i)),
+                              centroids.ptr<E>(static_cast<int>(old)),
                               data.cols) <= hits[i].distance) {
             l = old;
           }
@@ -300,7 +304,8 @@ std::unique_ptr<Vocabulary> TrainAkmIn(const VocabularyOptions& o, const cv::Mat
   return std::make_unique<AkmVocabulary<Space>>(o.metric, centroids, o.num_trees, o.checks);
 }
 
-std::unique_ptr<Vocabulary> TrainAkm(const VocabularyOptions& o, const cv::Mat& data, bool progress) {
+std::unique_ptr<Vocabulary> TrainAkm(const VocabularyOptions& o, const cv::Mat& data,
+                                     bool progress) {
   return o.metric == Metric::kHamming ? TrainAkmIn<BinarySpace>(o, data, progress)
                                       : TrainAkmIn<FloatSpace>(o, data, progress);
 }

@@ -15,7 +15,7 @@ class HkmVocabulary : public Vocabulary {
   struct Node {
     int32_t first_child = -1;  // index of the first child in nodes_, -1 for a leaf
     int32_t num_children = 0;
-    int32_t word = -1;         // word id of a leaf
+    int32_t word = -1;  // word id of a leaf
   };
 
   HkmVocabulary(Metric metric, std::vector<Node> nodes, cv::Mat centroids)
@@ -36,7 +36,8 @@ class HkmVocabulary : public Vocabulary {
   }
 
   void Assign(const cv::Mat& descriptors, int r, std::vector<WordHit>* out) const override {
-    if (r != 1) throw std::invalid_argument("an HKM vocabulary assigns one word per descriptor (r = 1)");
+    if (r != 1)
+      throw std::invalid_argument("an HKM vocabulary assigns one word per descriptor (r = 1)");
     const cv::Mat q = ToSpace(descriptors, metric_);
     out->assign(static_cast<size_t>(q.rows), WordHit{});
     if (q.rows > 0 && q.cols != centroids_.cols) {
@@ -113,7 +114,7 @@ void KMeansPP(const cv::Mat& data, const std::vector<int>& members, int k, std::
 
 template <typename Space>
 std::unique_ptr<Vocabulary> TrainHkmIn(const VocabularyOptions& o, const cv::Mat& data,
-                                     bool progress) {
+                                       bool progress) {
   using Node = typename HkmVocabulary<Space>::Node;
   const int k = o.hkm_branching;
   std::mt19937_64 rng(o.seed);
@@ -180,7 +181,8 @@ std::unique_ptr<Vocabulary> TrainHkmIn(const VocabularyOptions& o, const cv::Mat
   return std::make_unique<HkmVocabulary<Space>>(o.metric, std::move(nodes), std::move(centroids));
 }
 
-std::unique_ptr<Vocabulary> TrainHkm(const VocabularyOptions& o, const cv::Mat& data, bool progress) {
+std::unique_ptr<Vocabulary> TrainHkm(const VocabularyOptions& o, const cv::Mat& data,
+                                     bool progress) {
   return o.metric == Metric::kHamming ? TrainHkmIn<BinarySpace>(o, data, progress)
                                       : TrainHkmIn<FloatSpace>(o, data, progress);
 }
@@ -221,7 +223,8 @@ std::unique_ptr<Vocabulary> ReadHkmIn(BinaryReader* r, Metric metric) {
 }
 
 std::unique_ptr<Vocabulary> ReadHkm(BinaryReader* r, Metric metric) {
-  return metric == Metric::kHamming ? ReadHkmIn<BinarySpace>(r, metric) : ReadHkmIn<FloatSpace>(r, metric);
+  return metric == Metric::kHamming ? ReadHkmIn<BinarySpace>(r, metric)
+                                    : ReadHkmIn<FloatSpace>(r, metric);
 }
 
 }  // namespace vocabulary_internal

@@ -4,23 +4,25 @@
 
 // FLANN 1.9 headers are not self-contained: this order compiles. (flann::Index<> itself is not
 // used: it instantiates the LSH index, whose serialisation does not compile.)
+// clang-format off
 #include <flann/general.h>
 #include <flann/util/random.h>
 #include <flann/algorithms/dist.h>
 #include <flann/algorithms/center_chooser.h>
 #include <flann/algorithms/hierarchical_clustering_index.h>
 #include <flann/algorithms/kdtree_index.h>
+// clang-format on
 
 #include <algorithm>
 #include <atomic>
 #include <cmath>
 #include <limits>
+#include <memory>
 #include <mutex>
 #include <numeric>
 #include <random>
 #include <stdexcept>
 #include <thread>
-#include <memory>
 #include <vector>
 
 #include <opencv2/core.hpp>
@@ -75,7 +77,8 @@ struct BinarySpace {
 // Converts descriptors to the element type of the metric's space.
 inline cv::Mat ToSpace(const cv::Mat& desc, Metric metric) {
   if (metric == Metric::kHamming) {
-    if (desc.type() != CV_8U) throw std::invalid_argument("hamming vocabulary needs CV_8U descriptors");
+    if (desc.type() != CV_8U)
+      throw std::invalid_argument("hamming vocabulary needs CV_8U descriptors");
     return desc.isContinuous() ? desc : desc.clone();
   }
   if (metric == Metric::kL2Bytes && desc.type() != CV_8U) {
@@ -101,8 +104,8 @@ void UpdateCentroids(const cv::Mat& data, const std::vector<uint32_t>& label, cv
 // scikit-learn): each new centre is the best of several rows drawn with probability
 // proportional to their squared distance to the nearest centre so far.
 template <typename Space>
-void SeedPlusPlus(const cv::Mat& data, const std::vector<int>& members, int k,
-                  std::mt19937_64& rng, cv::Mat* centers) {
+void SeedPlusPlus(const cv::Mat& data, const std::vector<int>& members, int k, std::mt19937_64& rng,
+                  cv::Mat* centers) {
   using E = typename Space::Element;
   const int d = data.cols;
   const int n = static_cast<int>(members.size());
@@ -155,10 +158,12 @@ void SeedPlusPlus(const cv::Mat& data, const std::vector<int>& members, int k,
 // the words a file stores after the common header (vocabulary.cpp writes that header).
 
 // Flat k-means with approximate assignment (vocabulary_akm.cpp).
-std::unique_ptr<Vocabulary> TrainAkm(const VocabularyOptions& options, const cv::Mat& data, bool progress);
+std::unique_ptr<Vocabulary> TrainAkm(const VocabularyOptions& options, const cv::Mat& data,
+                                     bool progress);
 std::unique_ptr<Vocabulary> ReadAkm(BinaryReader* r, Metric metric);
 // The vocabulary tree (vocabulary_hkm.cpp).
-std::unique_ptr<Vocabulary> TrainHkm(const VocabularyOptions& options, const cv::Mat& data, bool progress);
+std::unique_ptr<Vocabulary> TrainHkm(const VocabularyOptions& options, const cv::Mat& data,
+                                     bool progress);
 std::unique_ptr<Vocabulary> ReadHkm(BinaryReader* r, Metric metric);
 
 // Limits on what a file may claim (a damaged size must not allocate the machine away).

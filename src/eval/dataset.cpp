@@ -149,10 +149,12 @@ void CheckImageName(const std::string& name, const std::string& source, int line
 
 // A split name names the file sequences/<name>.txt: one plain file name.
 void CheckSplitName(const std::string& name, const std::string& source, int lineno) {
-  if (name.empty() || name == "." || name == ".." || !IsText(name) || name.find('\t') != std::string::npos ||
-      name.find_first_of("/\\") != std::string::npos) {
-    Fail(source, lineno, "query_days: '" + Printable(name) + "' is not a split name (a plain file name "
-                         "under sequences/, UTF-8 text without '/' or control characters)");
+  if (name.empty() || name == "." || name == ".." || !IsText(name) ||
+      name.find('\t') != std::string::npos || name.find_first_of("/\\") != std::string::npos) {
+    Fail(source, lineno,
+         "query_days: '" + Printable(name) +
+             "' is not a split name (a plain file name "
+             "under sequences/, UTF-8 text without '/' or control characters)");
   }
 }
 
@@ -210,13 +212,13 @@ DatasetInfo ParseDatasetYaml(const std::string& text, const std::string& source)
          "unsupported format_version " + std::to_string(info.format_version) +
              " (this reader supports 1)");
   }
-  for (const auto& [key, field] : {std::pair<const char*, std::string*>{"name", &info.name},
-                                   {"surface", &info.surface}}) {
+  for (const auto& [key, field] :
+       {std::pair<const char*, std::string*>{"name", &info.name}, {"surface", &info.surface}}) {
     const YAML::Node node = root[key];
     if (!node || !node.IsScalar()) continue;
     if (!IsText(node.Scalar())) {
-      Fail(source, YamlLine(node), std::string("'") + key +
-                                       "' must be UTF-8 text without control characters");
+      Fail(source, YamlLine(node),
+           std::string("'") + key + "' must be UTF-8 text without control characters");
     }
     *field = node.Scalar();
   }
@@ -230,8 +232,7 @@ DatasetInfo ParseDatasetYaml(const std::string& text, const std::string& source)
   if (info.geometry.height <= 0) {
     Fail(source, YamlLine(root["image_height"]), "image_height must be positive");
   }
-  if (!(info.geometry.meters_per_pixel > 0.0) ||
-      !std::isfinite(info.geometry.meters_per_pixel)) {
+  if (!(info.geometry.meters_per_pixel > 0.0) || !std::isfinite(info.geometry.meters_per_pixel)) {
     Fail(source, YamlLine(root["meters_per_pixel"]), "meters_per_pixel must be positive");
   }
   if (const YAML::Node days = root["query_days"]) {
@@ -240,7 +241,8 @@ DatasetInfo ParseDatasetYaml(const std::string& text, const std::string& source)
     }
     if (days.IsMap()) {
       for (const auto& kv : days) {
-        if (!kv.first.IsScalar()) Fail(source, YamlLine(kv.first), "query_days: a split name must be text");
+        if (!kv.first.IsScalar())
+          Fail(source, YamlLine(kv.first), "query_days: a split name must be text");
         const std::string split = kv.first.Scalar();
         CheckSplitName(split, source, YamlLine(kv.first));
         double d = 0.0;
@@ -272,9 +274,9 @@ std::vector<PoseRecord> ParsePosesCsv(const std::string& text, const std::string
       for (size_t c = 0; c < fields.size(); ++c) {
         std::string name = fields[c];
         std::transform(name.begin(), name.end(), name.begin(), ::tolower);
-        int* slot = name == "image" ? &col_image
-                    : name == "x"   ? &col_x
-                    : name == "y"   ? &col_y
+        int* slot = name == "image"   ? &col_image
+                    : name == "x"     ? &col_x
+                    : name == "y"     ? &col_y
                     : name == "theta" ? &col_theta
                                       : nullptr;
         if (slot != nullptr) {
@@ -283,10 +285,12 @@ std::vector<PoseRecord> ParsePosesCsv(const std::string& text, const std::string
         }
       }
       for (const auto& [name, col] : {std::pair<const char*, int>{"image", col_image},
-                                      {"x", col_x}, {"y", col_y}, {"theta", col_theta}}) {
+                                      {"x", col_x},
+                                      {"y", col_y},
+                                      {"theta", col_theta}}) {
         if (col < 0) {
-          Fail(source, lineno, std::string("header lacks required column '") + name +
-                                   "' (found: " + t + ")");
+          Fail(source, lineno,
+               std::string("header lacks required column '") + name + "' (found: " + t + ")");
         }
       }
       num_cols = fields.size();
@@ -294,8 +298,9 @@ std::vector<PoseRecord> ParsePosesCsv(const std::string& text, const std::string
       continue;
     }
     if (fields.size() != num_cols) {
-      Fail(source, lineno, "expected " + std::to_string(num_cols) + " fields as in the header, found " +
-                               std::to_string(fields.size()));
+      Fail(source, lineno,
+           "expected " + std::to_string(num_cols) + " fields as in the header, found " +
+               std::to_string(fields.size()));
     }
     PoseRecord r;
     r.image = fields[col_image];
@@ -305,15 +310,15 @@ std::vector<PoseRecord> ParsePosesCsv(const std::string& text, const std::string
     const char* names[] = {"x", "y", "theta"};
     for (int k = 0; k < 3; ++k) {
       if (!ParseDouble(fields[numeric[k].first], numeric[k].second)) {
-        Fail(source, lineno, std::string("column '") + names[k] +
-                                 "': expected a finite number, found '" +
-                                 fields[numeric[k].first] + "'");
+        Fail(source, lineno,
+             std::string("column '") + names[k] + "': expected a finite number, found '" +
+                 fields[numeric[k].first] + "'");
       }
     }
     auto [it, inserted] = seen.emplace(r.image, lineno);
     if (!inserted) {
-      Fail(source, lineno, "image '" + r.image + "' already listed on line " +
-                               std::to_string(it->second));
+      Fail(source, lineno,
+           "image '" + r.image + "' already listed on line " + std::to_string(it->second));
     }
     out.push_back(std::move(r));
   }
@@ -357,8 +362,8 @@ std::string FormatDatasetYaml(const DatasetInfo& info) {
   e << YAML::Key << "surface" << YAML::Value << info.surface;
   e << YAML::Key << "image_width" << YAML::Value << info.geometry.width;
   e << YAML::Key << "image_height" << YAML::Value << info.geometry.height;
-  e << YAML::Key << "meters_per_pixel" << YAML::Value
-    << YAML::Precision(17) << info.geometry.meters_per_pixel;
+  e << YAML::Key << "meters_per_pixel" << YAML::Value << YAML::Precision(17)
+    << info.geometry.meters_per_pixel;
   if (!info.query_days.empty()) {
     e << YAML::Key << "query_days" << YAML::Value << YAML::Flow << YAML::BeginMap;
     for (const auto& [split, day] : info.query_days) {
@@ -392,7 +397,8 @@ std::string FormatSequence(const std::vector<std::string>& names) {
     // A line is trimmed and '#' starts a comment: such names have no sequence-file form.
     if (n.empty() || n.find('#') != std::string::npos || n != Trim(n) ||
         n.find_first_of("\r\n") != std::string::npos) {
-      throw std::invalid_argument("FormatSequence: image name '" + n + "' cannot be written "
+      throw std::invalid_argument("FormatSequence: image name '" + n +
+                                  "' cannot be written "
                                   "to a sequence file (empty, '#', or surrounding spaces)");
     }
     out += n;

@@ -41,7 +41,8 @@ Separation ScoreSeparation(const std::vector<double>& relevant_scores,
   s.threshold = irrelevant[std::max<size_t>(1, need) - 1];
   size_t kept = 0;
   for (double x : relevant_scores) kept += x > s.threshold ? 1 : 0;
-  s.kept_relevant = relevant_scores.empty() ? 0.0 : static_cast<double>(kept) / relevant_scores.size();
+  s.kept_relevant =
+      relevant_scores.empty() ? 0.0 : static_cast<double>(kept) / relevant_scores.size();
   return s;
 }
 

@@ -4,9 +4,9 @@
 #include <stdexcept>
 
 #include <cv_bridge/cv_bridge.h>
+#include <sensor_msgs/image_encodings.h>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
-#include <sensor_msgs/image_encodings.h>
 
 namespace gtbow_ros {
 
@@ -36,8 +36,8 @@ cv::Mat ToFloorImage(const sensor_msgs::Image& msg) {
   if (msg.step < row || msg.data.size() < static_cast<size_t>(msg.step) * (msg.height - 1) + row) {
     throw std::invalid_argument("image data (" + std::to_string(msg.data.size()) + " bytes, step " +
                                 std::to_string(msg.step) + ") is too small for " +
-                                std::to_string(msg.width) + "x" + std::to_string(msg.height) +
-                                " " + e);
+                                std::to_string(msg.width) + "x" + std::to_string(msg.height) + " " +
+                                e);
   }
   cv_bridge::CvImageConstPtr cv = cv_bridge::toCvShare(
       boost::shared_ptr<const sensor_msgs::Image>(&msg, [](const sensor_msgs::Image*) {}), e);
@@ -72,8 +72,8 @@ cv::Mat ToFloorImage(const sensor_msgs::CompressedImage& msg) {
     gray.release();
   }
   if (gray.empty()) {
-    throw std::invalid_argument("cannot decode the compressed image (format '" + msg.format + "', " +
-                                std::to_string(msg.data.size()) + " bytes)");
+    throw std::invalid_argument("cannot decode the compressed image (format '" + msg.format +
+                                "', " + std::to_string(msg.data.size()) + " bytes)");
   }
   cv::Mat flipped;
   cv::flip(gray, flipped, 0);
@@ -164,9 +164,11 @@ gtbow::Pose2D FromPose2DMsg(const geometry_msgs::Pose2D& m) {
   return {m.x, m.y, m.theta};
 }
 
-geometry_msgs::PoseWithCovarianceStamped ToPoseWithCovariance(
-    const gtbow::Pose2D& p, const std::array<double, 9>& c, const ros::Time& stamp,
-    const std::string& frame_id, double planar_variance) {
+geometry_msgs::PoseWithCovarianceStamped ToPoseWithCovariance(const gtbow::Pose2D& p,
+                                                              const std::array<double, 9>& c,
+                                                              const ros::Time& stamp,
+                                                              const std::string& frame_id,
+                                                              double planar_variance) {
   geometry_msgs::PoseWithCovarianceStamped m;
   m.header.stamp = stamp;
   m.header.frame_id = frame_id;

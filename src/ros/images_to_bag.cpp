@@ -13,17 +13,17 @@
 #include <string>
 
 #include <geometry_msgs/PoseStamped.h>
-#include <opencv2/imgproc.hpp>
 #include <rosbag/bag.h>
 #include <sensor_msgs/Image.h>
 #include <sensor_msgs/image_encodings.h>
 #include <tf2_msgs/TFMessage.h>
+#include <opencv2/imgproc.hpp>
 
 #include <CLI/CLI.hpp>
 
-#include "ground_texture_bow/eval/dataset.h"
 #include "ground_texture_bow/core/file_util.h"
 #include "ground_texture_bow/core/progress.h"
+#include "ground_texture_bow/eval/dataset.h"
 #include "ground_texture_bow/ros/conversions.h"
 
 namespace fs = std::filesystem;
@@ -57,8 +57,8 @@ sensor_msgs::Image ToMessage(const cv::Mat& gray_floor_view, const std::string& 
   } else if (encoding == enc::MONO16) {
     img.convertTo(img, CV_16U, 257.0);
   } else if (encoding != enc::MONO8) {
-    throw std::invalid_argument("--encoding must be mono8, mono16, bgr8 or rgb8, not '" +
-                                encoding + "'");
+    throw std::invalid_argument("--encoding must be mono8, mono16, bgr8 or rgb8, not '" + encoding +
+                                "'");
   }
   sensor_msgs::Image m;
   m.height = static_cast<uint32_t>(img.rows);
@@ -128,11 +128,12 @@ void RunImagesToBag(const BagArgs& a) {
   }
   fs::rename(tmp, out);
   const ImageGeometry& g = ds.info().geometry;
-  std::printf("%zu images of split '%s' written to %s\n  %s (%s), TF %s -> %s%s, ground truth %s\n"
-              "  %.1f Hz from t = %.1f s; %dx%d pixels, meters_per_pixel %.6g\n",
-              n, a.split.c_str(), out.c_str(), a.topic.c_str(), a.encoding.c_str(),
-              a.map_frame.c_str(), a.frame.c_str(), a.no_tf ? " (omitted: --no-tf)" : "",
-              a.truth_topic.c_str(), a.rate, a.start, g.width, g.height, g.meters_per_pixel);
+  std::printf(
+      "%zu images of split '%s' written to %s\n  %s (%s), TF %s -> %s%s, ground truth %s\n"
+      "  %.1f Hz from t = %.1f s; %dx%d pixels, meters_per_pixel %.6g\n",
+      n, a.split.c_str(), out.c_str(), a.topic.c_str(), a.encoding.c_str(), a.map_frame.c_str(),
+      a.frame.c_str(), a.no_tf ? " (omitted: --no-tf)" : "", a.truth_topic.c_str(), a.rate, a.start,
+      g.width, g.height, g.meters_per_pixel);
 }
 
 }  // namespace
@@ -141,8 +142,9 @@ void RunImagesToBag(const BagArgs& a) {
 int main(int argc, char** argv) {
   using gtbow::BagArgs;
   auto a = std::make_shared<BagArgs>();
-  CLI::App app{"gtbow_images_to_bag: write a dataset split as a rosbag of camera images plus "
-               "ground-truth TF (the ROS part of the gtbow tools)"};
+  CLI::App app{
+      "gtbow_images_to_bag: write a dataset split as a rosbag of camera images plus "
+      "ground-truth TF (the ROS part of the gtbow tools)"};
   CLI::App* cmd = &app;
   cmd->add_option("--dataset", a->dataset, "Dataset (docs/DATASET_FORMAT.md)")->required();
   cmd->add_option("-o,--out", a->out, "Output bag file")->required();
@@ -151,7 +153,8 @@ int main(int argc, char** argv) {
   cmd->add_option("--frame", a->frame, "Camera optical frame id")->capture_default_str();
   cmd->add_option("--map-frame", a->map_frame, "Parent frame of the ground truth")
       ->capture_default_str();
-  cmd->add_option("--truth-topic", a->truth_topic, "Ground-truth PoseStamped topic (camera footprint)")
+  cmd->add_option("--truth-topic", a->truth_topic,
+                  "Ground-truth PoseStamped topic (camera footprint)")
       ->capture_default_str();
   cmd->add_option("--encoding", a->encoding, "mono8, mono16, bgr8 or rgb8")->capture_default_str();
   cmd->add_option("--rate", a->rate, "Images per second")->capture_default_str();

@@ -23,14 +23,15 @@ class LocalizerNodelet : public nodelet::Nodelet {
       startup_error_ = e.what();
       NODELET_ERROR("ground_texture_bow: cannot start: %s", e.what());
       ros::NodeHandle pnh = getPrivateNodeHandle();
-      failed_ = std::make_unique<diagnostic_updater::Updater>(getNodeHandle(), pnh, pnh.getNamespace());
+      failed_ =
+          std::make_unique<diagnostic_updater::Updater>(getNodeHandle(), pnh, pnh.getNamespace());
       failed_->setHardwareID("ground_texture_bow");
       failed_->add("localizer", [this](diagnostic_updater::DiagnosticStatusWrapper& stat) {
         stat.summary(diagnostic_msgs::DiagnosticStatus::ERROR, "cannot start: " + startup_error_);
       });
       failed_->force_update();
-      failed_timer_ = getNodeHandle().createTimer(ros::Duration(1.0),
-                                                  [this](const ros::TimerEvent&) { failed_->update(); });
+      failed_timer_ = getNodeHandle().createTimer(
+          ros::Duration(1.0), [this](const ros::TimerEvent&) { failed_->update(); });
     }
   }
   std::unique_ptr<LocalizerServer> server_;

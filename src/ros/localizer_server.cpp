@@ -6,13 +6,13 @@
 
 #include <cv_bridge/cv_bridge.h>
 #include <geometry_msgs/TransformStamped.h>
-#include <opencv2/imgproc.hpp>
 #include <visualization_msgs/MarkerArray.h>
+#include <opencv2/imgproc.hpp>
 
 #include "ground_texture_bow/CandidateList.h"
-#include "ground_texture_bow/core/enum_names.h"
 #include "ground_texture_bow/LoopClosure.h"
 #include "ground_texture_bow/core/config.h"
+#include "ground_texture_bow/core/enum_names.h"
 #include "ground_texture_bow/ros/conversions.h"
 
 namespace gtbow_ros {
@@ -20,8 +20,9 @@ namespace gtbow_ros {
 using ground_texture_bow::Status;
 
 namespace {
-constexpr gtbow::EnumName<Mode> kModes[] = {
-    {"mapping", Mode::kMapping}, {"localization", Mode::kLocalization}, {"external", Mode::kExternal}};
+constexpr gtbow::EnumName<Mode> kModes[] = {{"mapping", Mode::kMapping},
+                                            {"localization", Mode::kLocalization},
+                                            {"external", Mode::kExternal}};
 }  // namespace
 
 Mode ParseMode(const std::string& name) { return gtbow::ParseEnumName(name, "mode", kModes); }
@@ -56,7 +57,8 @@ void ServerOptions::Check() const {
     core.Check();
   } catch (const std::invalid_argument& e) {
     throw std::invalid_argument(std::string("parameter (~threads, ~meters_per_pixel, ~candidates, "
-                                            "~min_inliers or the preset): ") + e.what());
+                                            "~min_inliers or the preset): ") +
+                                e.what());
   }
 }
 
@@ -81,7 +83,8 @@ ServerOptions ReadOptions(const ros::NodeHandle& pnh) {
   pnh.param("keyframe_min_angle", o.keyframe_min_angle, o.keyframe_min_angle);
   pnh.param("keyframe_every_n", o.keyframe_every_n, o.keyframe_every_n);
   pnh.param("candidates", o.core.localization.candidates, o.core.localization.candidates);
-  pnh.param("min_inliers", o.core.localization.pose.min_inliers, o.core.localization.pose.min_inliers);
+  pnh.param("min_inliers", o.core.localization.pose.min_inliers,
+            o.core.localization.pose.min_inliers);
   pnh.param("exclude_recent", o.exclude_recent, o.exclude_recent);
   pnh.param("publish_tf", o.publish_tf, o.publish_tf);
   pnh.param("localized_timeout", o.localized_timeout, o.localized_timeout);
@@ -115,7 +118,8 @@ LocalizerServer::LocalizerServer(ros::NodeHandle nh, ros::NodeHandle pnh,
   image_transport::ImageTransport pit(pnh_);
   debug_pub_ = pit.advertise("debug_image", 1);
 
-  services_.push_back(pnh_.advertiseService("query_candidates", &LocalizerServer::OnQueryCandidates, this));
+  services_.push_back(
+      pnh_.advertiseService("query_candidates", &LocalizerServer::OnQueryCandidates, this));
   services_.push_back(pnh_.advertiseService("add_keyframe", &LocalizerServer::OnAddKeyframe, this));
   services_.push_back(pnh_.advertiseService("localize", &LocalizerServer::OnLocalize, this));
   services_.push_back(pnh_.advertiseService("save_map", &LocalizerServer::OnSaveMap, this));
@@ -126,7 +130,8 @@ LocalizerServer::LocalizerServer(ros::NodeHandle nh, ros::NodeHandle pnh,
 
   updater_.setHardwareID("ground_texture_bow");
   updater_.add("localizer", this, &LocalizerServer::Diagnose);
-  diag_timer_ = nh_.createTimer(ros::Duration(1.0), [this](const ros::TimerEvent&) { updater_.update(); });
+  diag_timer_ =
+      nh_.createTimer(ros::Duration(1.0), [this](const ros::TimerEvent&) { updater_.update(); });
   markers_timer_ = nh_.createTimer(ros::Duration(1.0), &LocalizerServer::PublishMarkers, this);
 
   worker_ = std::thread([this] { WorkerLoop(); });
@@ -209,8 +214,9 @@ void LocalizerServer::WorkerLoop() {
     try {
       ProcessImage(msg);
     } catch (const std::exception& e) {  // never let an image take the manager down
-      Reject(std::string("image at ") + std::to_string(msg.header().stamp.toSec()) + ": " + e.what(),
-             true);
+      Reject(
+          std::string("image at ") + std::to_string(msg.header().stamp.toSec()) + ": " + e.what(),
+          true);
     }
   }
 }
@@ -220,7 +226,8 @@ std::optional<gtbow::Pose2D> LocalizerServer::LookupFootprint(const std::string&
                                                               const std::string& target,
                                                               bool warn) {
   try {
-    const auto t = tf_buffer_.lookupTransform(target, frame, stamp, ros::Duration(options_.tf_timeout));
+    const auto t =
+        tf_buffer_.lookupTransform(target, frame, stamp, ros::Duration(options_.tf_timeout));
     return FootprintFromTransform(t.transform);
   } catch (const std::exception& e) {
     if (warn) {
@@ -286,8 +293,9 @@ void LocalizerServer::ProcessImage(const Pending& msg) {
     // the backend inserts keyframes and filters candidates itself.
     const uint32_t recent =
         mode == Mode::kMapping ? static_cast<uint32_t>(options_.exclude_recent) : 0;
-    const auto cands = localizer_->Query(img, static_cast<size_t>(options_.core.localization.candidates), true,
-                                         n > recent ? n - recent : 0, n);
+    const auto cands =
+        localizer_->Query(img, static_cast<size_t>(options_.core.localization.candidates), true,
+                          n > recent ? n - recent : 0, n);
     uint32_t query_id = ground_texture_bow::CandidateList::NO_ID;
     if (mode == Mode::kMapping && IsKeyframe(pose)) {
       query_id = localizer_->Add(img, ToNanoseconds(header.stamp), pose);
@@ -320,13 +328,15 @@ void LocalizerServer::PublishFix(const gtbow::Localization& fix, const std_msgs:
     std::lock_guard<std::mutex> lock(state_mutex_);
     last_fix_time_ = ros::Time::now();
   }
-  pose_pub_.publish(ToPoseWithCovariance(fix.estimate.floor_from_query, fix.estimate.covariance, header.stamp,
-                                         options_.map_frame, options_.planar_variance));
+  pose_pub_.publish(ToPoseWithCovariance(fix.estimate.floor_from_query, fix.estimate.covariance,
+                                         header.stamp, options_.map_frame,
+                                         options_.planar_variance));
   if (!options_.publish_tf) return;
   // map -> odom such that map -> odom -> camera gives the fix (planar).
   const auto odom = LookupFootprint(header.frame_id, header.stamp, options_.odom_frame, true);
   if (!odom) return;
-  const gtbow::Pose2D map_from_odom = gtbow::Compose(fix.estimate.floor_from_query, gtbow::Inverse(*odom));
+  const gtbow::Pose2D map_from_odom =
+      gtbow::Compose(fix.estimate.floor_from_query, gtbow::Inverse(*odom));
   geometry_msgs::TransformStamped t;
   t.header.stamp = header.stamp;
   t.header.frame_id = options_.map_frame;
@@ -363,9 +373,11 @@ void LocalizerServer::PublishLoopClosures(const std::vector<gtbow::Candidate>& c
   }
 }
 
-void LocalizerServer::PublishDebugImage(const cv::Mat& floor_image, const gtbow::ProcessedImage& img,
+void LocalizerServer::PublishDebugImage(const cv::Mat& floor_image,
+                                        const gtbow::ProcessedImage& img,
                                         const std::vector<gtbow::Vec2>& inliers,
-                                        const std::string& caption, const std_msgs::Header& header) {
+                                        const std::string& caption,
+                                        const std_msgs::Header& header) {
   cv::Mat color;
   cv::Mat camera_view;
   cv::flip(floor_image, camera_view, 0);  // back to the camera's view
@@ -405,7 +417,8 @@ void LocalizerServer::PublishMarkers(const ros::TimerEvent&) {
   const auto kfs = localizer_->Keyframes();
   for (const auto& k : kfs) {
     if (!k.has_pose) continue;
-    const auto corners = gtbow::Footprint(k.map_from_camera, {k.width, k.height, options_.core.meters_per_pixel});
+    const auto corners =
+        gtbow::Footprint(k.map_from_camera, {k.width, k.height, options_.core.meters_per_pixel});
     for (int i = 0; i < 4; ++i) {
       geometry_msgs::Point a, b;
       a.x = corners[i].x;
@@ -449,8 +462,8 @@ void LocalizerServer::Diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat
   const Mode mode = mode_.load();
   if (rejected_ > 0 || rejected_requests_ > 0 || missing_tf_ > 0) {
     stat.summary(diagnostic_msgs::DiagnosticStatus::WARN,
-                 "rejected images: " + std::to_string(rejected_.load()) + ", rejected requests: " +
-                     std::to_string(rejected_requests_.load()) +
+                 "rejected images: " + std::to_string(rejected_.load()) +
+                     ", rejected requests: " + std::to_string(rejected_requests_.load()) +
                      ", missing transforms: " + std::to_string(missing_tf_.load()));
   } else if (mode == Mode::kLocalization && !localized) {
     stat.summary(diagnostic_msgs::DiagnosticStatus::WARN, "not localized");
@@ -500,7 +513,7 @@ void LocalizerServer::ForgetMapState() {
 }
 
 bool LocalizerServer::OnQueryCandidates(ground_texture_bow::QueryCandidates::Request& req,
-                                      ground_texture_bow::QueryCandidates::Response& res) {
+                                        ground_texture_bow::QueryCandidates::Response& res) {
   res.status = Serve("query_candidates", false, [&] {
     const size_t k = req.k > 0 ? req.k : static_cast<size_t>(options_.core.localization.candidates);
     std::vector<gtbow::Candidate> cands;
@@ -516,7 +529,7 @@ bool LocalizerServer::OnQueryCandidates(ground_texture_bow::QueryCandidates::Req
 }
 
 bool LocalizerServer::OnAddKeyframe(ground_texture_bow::AddKeyframe::Request& req,
-                                  ground_texture_bow::AddKeyframe::Response& res) {
+                                    ground_texture_bow::AddKeyframe::Response& res) {
   res.status = Serve("add_keyframe", false, [&] {
     if (mode_.load() == Mode::kLocalization) {
       return MakeStatus(Status::FAILED_PRECONDITION,
@@ -533,13 +546,15 @@ bool LocalizerServer::OnAddKeyframe(ground_texture_bow::AddKeyframe::Request& re
 }
 
 bool LocalizerServer::OnLocalize(ground_texture_bow::Localize::Request& req,
-                                  ground_texture_bow::Localize::Response& res) {
+                                 ground_texture_bow::Localize::Response& res) {
   res.status = Serve("localize", false, [&] {
-    const gtbow::Localization fix = localizer_->Localize(localizer_->Process(ToFloorImage(req.image)));
+    const gtbow::Localization fix =
+        localizer_->Localize(localizer_->Process(ToFloorImage(req.image)));
     res.localized = fix.success;
     if (!fix.success) return MakeStatus(Status::NOT_FOUND, fix.reason);
-    res.pose = ToPoseWithCovariance(fix.estimate.floor_from_query, fix.estimate.covariance, req.image.header.stamp,
-                                    options_.map_frame, options_.planar_variance);
+    res.pose =
+        ToPoseWithCovariance(fix.estimate.floor_from_query, fix.estimate.covariance,
+                             req.image.header.stamp, options_.map_frame, options_.planar_variance);
     res.keyframe_id = fix.image;
     res.inliers = static_cast<uint32_t>(fix.estimate.inliers);
     return MakeStatus(Status::OK, "localized against keyframe " + std::to_string(fix.image));
@@ -548,35 +563,37 @@ bool LocalizerServer::OnLocalize(ground_texture_bow::Localize::Request& req,
 }
 
 bool LocalizerServer::OnSaveMap(ground_texture_bow::SaveMap::Request& req,
-                              ground_texture_bow::SaveMap::Response& res) {
+                                ground_texture_bow::SaveMap::Response& res) {
   res.status = Serve("save_map", true, [&] {
     if (mode_.load() == Mode::kLocalization) {
       // Localization mode never writes a file (set_mode mapping or external to save).
-      return MakeStatus(Status::FAILED_PRECONDITION,
-                        "localization mode: the map is read-only and is not saved (set_mode first)");
+      return MakeStatus(
+          Status::FAILED_PRECONDITION,
+          "localization mode: the map is read-only and is not saved (set_mode first)");
     }
     if (req.path.empty()) throw std::invalid_argument("empty path");
     localizer_->Save(req.path);
-    return MakeStatus(Status::OK, "saved " + std::to_string(localizer_->size()) +
-                                      " keyframes to " + req.path);
+    return MakeStatus(Status::OK,
+                      "saved " + std::to_string(localizer_->size()) + " keyframes to " + req.path);
   });
   return true;
 }
 
 bool LocalizerServer::OnLoadMap(ground_texture_bow::LoadMap::Request& req,
-                              ground_texture_bow::LoadMap::Response& res) {
+                                ground_texture_bow::LoadMap::Response& res) {
   res.status = Serve("load_map", true, [&] {
     if (req.path.empty()) throw std::invalid_argument("empty path");
     localizer_->Load(req.path);
     ForgetMapState();
     res.keyframes = static_cast<uint32_t>(localizer_->size());
-    return MakeStatus(Status::OK, "loaded " + std::to_string(res.keyframes) + " keyframes from " +
-                                      req.path);
+    return MakeStatus(Status::OK,
+                      "loaded " + std::to_string(res.keyframes) + " keyframes from " + req.path);
   });
   return true;
 }
 
-bool LocalizerServer::OnReset(ground_texture_bow::Reset::Request&, ground_texture_bow::Reset::Response& res) {
+bool LocalizerServer::OnReset(ground_texture_bow::Reset::Request&,
+                              ground_texture_bow::Reset::Response& res) {
   res.status = Serve("reset", false, [&] {
     if (mode_.load() == Mode::kLocalization) {
       return MakeStatus(Status::FAILED_PRECONDITION, "localization mode: the map is read-only");
@@ -588,7 +605,8 @@ bool LocalizerServer::OnReset(ground_texture_bow::Reset::Request&, ground_textur
   return true;
 }
 
-bool LocalizerServer::OnGetInfo(ground_texture_bow::GetInfo::Request&, ground_texture_bow::GetInfo::Response& res) {
+bool LocalizerServer::OnGetInfo(ground_texture_bow::GetInfo::Request&,
+                                ground_texture_bow::GetInfo::Response& res) {
   res.status = Serve("get_info", false, [&] {
     res.mode = ModeName(mode_.load());
     res.database_size = static_cast<uint32_t>(localizer_->size());

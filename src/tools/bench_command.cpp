@@ -56,7 +56,8 @@ void RunOne(const BenchArgs& a, const std::string& preset, const RetrievalConfig
 void RunBench(const BenchArgs& a) {
   std::vector<RetrievalConfig> configs;
   for (const auto& p : a.presets) configs.push_back(LoadRetrievalConfig(p));
-  if (configs.empty()) configs.push_back(LoadRetrievalConfig(GTBOW_CONFIG_DIR "/high_accuracy.yaml"));
+  if (configs.empty())
+    configs.push_back(LoadRetrievalConfig(GTBOW_CONFIG_DIR "/high_accuracy.yaml"));
   if (!a.ann.empty()) {
     for (auto& c : configs) c.vocabulary.ann = ParseAnnIndex(a.ann);
   }
@@ -74,10 +75,11 @@ void RunBench(const BenchArgs& a) {
   CheckVocabularyExtractor(*vocab, a.vocab, configs[0].features);
   ImageSource db_src = ImageSource::FromDataset(a.dataset, a.split);
   db_src.Subsample(a.max_images);
-  const auto feats = ExtractAllCached(db_src, configs[0].features, DefaultCacheDir(), a.threads, !a.quiet);
+  const auto feats =
+      ExtractAllCached(db_src, configs[0].features, DefaultCacheDir(), a.threads, !a.quiet);
   for (size_t i = 0; i < configs.size(); ++i) {
-    RunOne(a, a.presets.empty() ? std::string("high_accuracy") : a.presets[i], configs[i], vocab.get(),
-           vocab_load_ms, db_src, feats);
+    RunOne(a, a.presets.empty() ? std::string("high_accuracy") : a.presets[i], configs[i],
+           vocab.get(), vocab_load_ms, db_src, feats);
   }
 }
 
@@ -103,7 +105,8 @@ void RunOne(const BenchArgs& a, const std::string& preset, const RetrievalConfig
   const size_t mem = db.MemoryBytes();
 
   // Save and load the map.
-  const fs::path tmp = fs::temp_directory_path() / ("gtbow_bench_" + std::to_string(::getpid()) + ".gtdb");
+  const fs::path tmp =
+      fs::temp_directory_path() / ("gtbow_bench_" + std::to_string(::getpid()) + ".gtdb");
   t0 = std::chrono::steady_clock::now();
   db.Save(tmp);
   const double save_ms = Ms(std::chrono::steady_clock::now() - t0);
@@ -116,7 +119,8 @@ void RunOne(const BenchArgs& a, const std::string& preset, const RetrievalConfig
   fs::remove(tmp);
 
   // Queries: random images of the query split (default: the database split itself).
-  ImageSource q_src = a.query_split.empty() ? db_src : ImageSource::FromDataset(a.dataset, a.query_split);
+  ImageSource q_src =
+      a.query_split.empty() ? db_src : ImageSource::FromDataset(a.dataset, a.query_split);
   std::vector<size_t> order(q_src.size());
   std::iota(order.begin(), order.end(), 0);
   std::mt19937_64 rng(7);
@@ -147,7 +151,8 @@ void RunOne(const BenchArgs& a, const std::string& preset, const RetrievalConfig
       (threads == 1 ? tr_ms : ptr_ms).push_back(Ms(t2 - t1));
       (threads == 1 ? q_ms : pq_ms).push_back(Ms(t3 - t2));
       (threads == 1 ? e2e_ms : pe2e_ms).push_back(Ms(t3 - s));
-      if (threads == 1 && sample_desc.rows < 2500 && !f.descriptors.empty()) sample_desc.push_back(f.descriptors);
+      if (threads == 1 && sample_desc.rows < 2500 && !f.descriptors.empty())
+        sample_desc.push_back(f.descriptors);
     }
   }
   cv::setNumThreads(cv_threads);
@@ -159,7 +164,8 @@ void RunOne(const BenchArgs& a, const std::string& preset, const RetrievalConfig
   for (size_t i = 0; i < approx.size(); ++i) agree += approx[i].word == exact[i].word ? 1 : 0;
 
   const PaperTiming& paper = PaperTimingFor(c);
-  const TimingStats ex = Summarise(ex_ms), tr = Summarise(tr_ms), in = Summarise(insert_ms), qu = Summarise(q_ms);
+  const TimingStats ex = Summarise(ex_ms), tr = Summarise(tr_ms), in = Summarise(insert_ms),
+                    qu = Summarise(q_ms);
   char buf[4096];
   std::string md;
   auto line = [&](const char* fmt, auto... args) {
@@ -167,21 +173,33 @@ void RunOne(const BenchArgs& a, const std::string& preset, const RetrievalConfig
     md += buf;
   };
   line("## Retrieval timing: %s (preset %s)\n\n", paper.name, preset.c_str());
-  line("Database: %zu images of `%s` (split `%s`), vocabulary %s/%s with %u words; %zu queries, "
-       "one thread; times in ms.\n\n",
-       db.size(), a.dataset.c_str(), a.split.c_str(), VocabularyKindName(vocab->kind()).c_str(),
-       MetricName(vocab->metric()).c_str(), vocab->size(), order.size());
+  line(
+      "Database: %zu images of `%s` (split `%s`), vocabulary %s/%s with %u words; %zu queries, "
+      "one thread; times in ms.\n\n",
+      db.size(), a.dataset.c_str(), a.split.c_str(), VocabularyKindName(vocab->kind()).c_str(),
+      MetricName(vocab->metric()).c_str(), vocab->size(), order.size());
   line("| stage | paper (i7-13700), mean ± sd | here, mean ± sd | here, median | here, p95 |\n");
   line("| --- | --- | --- | --- | --- |\n");
-  line("| feature extraction | %.1f ± %.1f | %.2f ± %.2f | %.2f | %.2f |\n", paper.extract[0], paper.extract[1], ex.mean, ex.sd, ex.median, ex.p95);
-  line("| BoW transform | %.1f ± %.1f | %.2f ± %.2f | %.2f | %.2f |\n", paper.transform[0], paper.transform[1], tr.mean, tr.sd, tr.median, tr.p95);
-  line("| database insertion | %.1f ± %.1f | %.3f ± %.3f | %.3f | %.3f |\n", paper.insert[0], paper.insert[1], in.mean, in.sd, in.median, in.p95);
-  line("| database query | %.1f ± %.1f | %.2f ± %.2f | %.2f | %.2f |\n", paper.query[0], paper.query[1], qu.mean, qu.sd, qu.median, qu.p95);
+  line("| feature extraction | %.1f ± %.1f | %.2f ± %.2f | %.2f | %.2f |\n", paper.extract[0],
+       paper.extract[1], ex.mean, ex.sd, ex.median, ex.p95);
+  line("| BoW transform | %.1f ± %.1f | %.2f ± %.2f | %.2f | %.2f |\n", paper.transform[0],
+       paper.transform[1], tr.mean, tr.sd, tr.median, tr.p95);
+  line("| database insertion | %.1f ± %.1f | %.3f ± %.3f | %.3f | %.3f |\n", paper.insert[0],
+       paper.insert[1], in.mean, in.sd, in.median, in.p95);
+  line("| database query | %.1f ± %.1f | %.2f ± %.2f | %.2f | %.2f |\n", paper.query[0],
+       paper.query[1], qu.mean, qu.sd, qu.median, qu.p95);
   const TimingStats e2 = Summarise(e2e_ms), pex = Summarise(pex_ms), ptr = Summarise(ptr_ms),
                     pq = Summarise(pq_ms), pe2 = Summarise(pe2e_ms);
-  line("| extraction + transform + query | - | %.2f ± %.2f | %.2f | %.2f |\n\n", e2.mean, e2.sd, e2.median, e2.p95);
-  line("Both cores (%d threads: OpenCV's threads in extraction, descriptor assignment split, query blocks split):\n\n", all);
-  line("| stage | one thread, median | %d threads, median | %d threads, p95 | change |\n| --- | --- | --- | --- | --- |\n", all, all);
+  line("| extraction + transform + query | - | %.2f ± %.2f | %.2f | %.2f |\n\n", e2.mean, e2.sd,
+       e2.median, e2.p95);
+  line(
+      "Both cores (%d threads: OpenCV's threads in extraction, descriptor assignment split, query "
+      "blocks split):\n\n",
+      all);
+  line(
+      "| stage | one thread, median | %d threads, median | %d threads, p95 | change |\n| --- | --- "
+      "| --- | --- | --- |\n",
+      all, all);
   auto row = [&](const char* stage, const TimingStats& one, const TimingStats& par) {
     line("| %s | %.2f | %.2f | %.2f | %+.0f%% |\n", stage, one.median, par.median, par.p95,
          one.median > 0 ? 100.0 * (par.median - one.median) / one.median : 0.0);
@@ -191,13 +209,21 @@ void RunOne(const BenchArgs& a, const std::string& preset, const RetrievalConfig
   row("database query", qu, pq);
   row("extraction + transform + query", e2, pe2);
   line("\n");
-  line("- first-word agreement with the exact nearest word: %.1f%% of %zu descriptors\n", 100.0 * agree / std::max<size_t>(1, approx.size()), approx.size());
-  line("- index memory: %.2f KB per image (%.1f MB in all) after online insertion; %.2f KB per image after a reload\n",
-       mem / 1024.0 / std::max<size_t>(1, db.size()), mem / 1e6, loaded_mem / 1024.0 / std::max<size_t>(1, db.size()));
-  line("- map file: %.1f MB; save %.0f ms; load %.0f ms; vocabulary load %.0f ms (+ %.0f ms search index)\n", file_bytes / 1e6, save_ms, load_ms, vocab_load_ms, search_setup_ms);
+  line("- first-word agreement with the exact nearest word: %.1f%% of %zu descriptors\n",
+       100.0 * agree / std::max<size_t>(1, approx.size()), approx.size());
+  line(
+      "- index memory: %.2f KB per image (%.1f MB in all) after online insertion; %.2f KB per "
+      "image after a reload\n",
+      mem / 1024.0 / std::max<size_t>(1, db.size()), mem / 1e6,
+      loaded_mem / 1024.0 / std::max<size_t>(1, db.size()));
+  line(
+      "- map file: %.1f MB; save %.0f ms; load %.0f ms; vocabulary load %.0f ms (+ %.0f ms search "
+      "index)\n",
+      file_bytes / 1e6, save_ms, load_ms, vocab_load_ms, search_setup_ms);
   line("- word search: %s (%s)\n", AnnIndexName(c.vocabulary.ann).c_str(),
-       c.vocabulary.ann == AnnIndex::kIvf ? ("nprobe " + std::to_string(a.nprobe > 0 ? a.nprobe : c.vocabulary.nprobe)).c_str()
-                                          : ("checks " + std::to_string(a.checks > 0 ? a.checks : c.vocabulary.checks)).c_str());
+       c.vocabulary.ann == AnnIndex::kIvf
+           ? ("nprobe " + std::to_string(a.nprobe > 0 ? a.nprobe : c.vocabulary.nprobe)).c_str()
+           : ("checks " + std::to_string(a.checks > 0 ? a.checks : c.vocabulary.checks)).c_str());
   std::fputs(md.c_str(), stdout);
   if (!a.markdown.empty()) {
     std::ofstream(a.markdown, std::ios::app) << md << "\n";
@@ -208,12 +234,16 @@ void RunOne(const BenchArgs& a, const std::string& preset, const RetrievalConfig
 
 void RegisterBenchRetrieval(CLI::App& app) {
   auto a = std::make_shared<BenchArgs>();
-  CLI::App* cmd = app.add_subcommand("bench-retrieval", "Time extraction, transform, insertion and query (the paper's Table II)");
+  CLI::App* cmd = app.add_subcommand(
+      "bench-retrieval", "Time extraction, transform, insertion and query (the paper's Table II)");
   cmd->add_option("--vocab", a->vocab, "Vocabulary file (gtbow train-vocab)")->required();
-  cmd->add_option("--preset", a->presets, "Retrieval configuration YAML (repeatable, same features); default: high accuracy");
+  cmd->add_option(
+      "--preset", a->presets,
+      "Retrieval configuration YAML (repeatable, same features); default: high accuracy");
   cmd->add_option("--dataset", a->dataset, "Dataset directory")->required();
   cmd->add_option("--split", a->split, "Split that forms the database")->capture_default_str();
-  cmd->add_option("--query-split", a->query_split, "Split to draw queries from (default: the database split)");
+  cmd->add_option("--query-split", a->query_split,
+                  "Split to draw queries from (default: the database split)");
   cmd->add_option("--queries", a->queries, "Number of random queries")->capture_default_str();
   cmd->add_option("--max-images", a->max_images, "Use at most this many database images");
   cmd->add_option("--checks", a->checks, "Override the vocabulary's kd-tree checks per descriptor");

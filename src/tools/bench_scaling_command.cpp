@@ -26,10 +26,10 @@
 #include <thread>
 
 #include "commands.h"
-#include "ground_texture_bow/core/parallel.h"
 #include "ground_texture_bow/core/config.h"
 #include "ground_texture_bow/core/database.h"
 #include "ground_texture_bow/core/file_util.h"
+#include "ground_texture_bow/core/parallel.h"
 #include "ground_texture_bow/core/progress.h"
 #include "image_source.h"
 #include "timing.h"
@@ -68,7 +68,6 @@ size_t ResidentBytes() {
   return 0;
 }
 
-
 // Keypoints of the real images, each with its rows and soft-assignment weights, for sampling
 // synthetic images.
 class KeypointPool {
@@ -90,7 +89,8 @@ class KeypointPool {
       }
     }
     offsets_.push_back(static_cast<uint32_t>(rows_.size()));
-    if (angles_.empty()) throw std::runtime_error("bench: the real images have no keypoints to sample");
+    if (angles_.empty())
+      throw std::runtime_error("bench: the real images have no keypoints to sample");
   }
 
   // A synthetic image, reproducible from `seed`.
@@ -126,14 +126,14 @@ struct QueryTiming {
 struct SizeResult {
   size_t images = 0, real = 0, synthetic = 0;
   size_t entries = 0;
-  size_t index_bytes = 0;       // MemoryBytes after online insertion (with spare capacity)
-  size_t rss_online = 0;        // resident set growth with the online index
-  size_t rss_loaded = 0;        // resident set growth with the loaded (mapped) index
-  TimingStats insert_us;        // insertions since the previous size
+  size_t index_bytes = 0;  // MemoryBytes after online insertion (with spare capacity)
+  size_t rss_online = 0;   // resident set growth with the online index
+  size_t rss_loaded = 0;   // resident set growth with the loaded (mapped) index
+  TimingStats insert_us;   // insertions since the previous size
   double save_ms = 0, load_cold_ms = -1, load_warm_ms = 0;
   size_t file_bytes = 0;
   std::vector<QueryTiming> query;
-  double top1_agreement = -1;   // queries whose top result is the one at the largest real size
+  double top1_agreement = -1;  // queries whose top result is the one at the largest real size
 };
 
 struct PresetResult {
@@ -197,7 +197,9 @@ PresetResult RunPreset(const ScalingArgs& a, const std::string& name, const Retr
     sr.synthetic = target - sr.real;
     std::vector<double> insert_us;
     std::unique_ptr<ProgressBar> bar;
-    if (!a.quiet) bar = std::make_unique<ProgressBar>("  " + name + ": to " + std::to_string(target) + " images", target - next);
+    if (!a.quiet)
+      bar = std::make_unique<ProgressBar>(
+          "  " + name + ": to " + std::to_string(target) + " images", target - next);
     constexpr size_t kBatch = 8192;
     std::vector<BowVector> batch;
     while (next < target) {
@@ -243,7 +245,8 @@ PresetResult RunPreset(const ScalingArgs& a, const std::string& name, const Retr
 
     for (int threads : {1, 2}) {
       db->set_query_threads(threads);
-      for (size_t i = 0; i < std::min<size_t>(3, queries.size()); ++i) db->Query(queries[i], 10, true);
+      for (size_t i = 0; i < std::min<size_t>(3, queries.size()); ++i)
+        db->Query(queries[i], 10, true);
       std::vector<double> ms;
       std::vector<uint32_t> top1;
       for (size_t i = 0; i < queries.size(); ++i) {
@@ -264,9 +267,12 @@ PresetResult RunPreset(const ScalingArgs& a, const std::string& name, const Retr
     }
     sr.rss_loaded = ResidentBytes() - std::min(rss0, ResidentBytes());
     if (!a.quiet) {
-      std::fprintf(stderr, "  %s %zu images (%zu synthetic): query %.2f ms (1 thread) %.2f ms (2), rss %s, load %.0f ms\n",
+      std::fprintf(stderr,
+                   "  %s %zu images (%zu synthetic): query %.2f ms (1 thread) %.2f ms (2), rss %s, "
+                   "load %.0f ms\n",
                    name.c_str(), target, sr.synthetic, sr.query[0].ms.median, sr.query[1].ms.median,
-                   Human(static_cast<double>(sr.rss_loaded)).c_str(), sr.load_cold_ms >= 0 ? sr.load_cold_ms : sr.load_warm_ms);
+                   Human(static_cast<double>(sr.rss_loaded)).c_str(),
+                   sr.load_cold_ms >= 0 ? sr.load_cold_ms : sr.load_warm_ms);
     }
     pr.sizes.push_back(sr);
   }
@@ -279,27 +285,31 @@ std::string Json(const ScalingArgs& a, const std::vector<PresetResult>& results,
   j.precision(6);
   j << "{\n  \"dataset\": \"" << a.dataset << "\",\n  \"real_images\": " << real_images
     << ",\n  \"query_split\": \"" << query_split << "\",\n  \"queries\": " << n_queries
-    << ",\n  \"synthetic_images_note\": \"images beyond real_images are synthetic postings sampled from "
+    << ",\n  \"synthetic_images_note\": \"images beyond real_images are synthetic postings sampled "
+       "from "
        "keypoint rows, soft-assignment weights and orientations measured on the real images\",\n"
     << "  \"presets\": [\n";
   for (size_t p = 0; p < results.size(); ++p) {
     const PresetResult& r = results[p];
-    j << "    {\"name\": \"" << r.name << "\", \"soft_assignment\": " << r.config.bow.soft_assignment
+    j << "    {\"name\": \"" << r.name
+      << "\", \"soft_assignment\": " << r.config.bow.soft_assignment
       << ", \"compact_postings\": " << (r.config.bow.compact_postings ? "true" : "false")
       << ", \"pool_keypoints\": " << r.pool_keypoints << ", \"sizes\": [\n";
     for (size_t s = 0; s < r.sizes.size(); ++s) {
       const SizeResult& x = r.sizes[s];
-      j << "      {\"images\": " << x.images << ", \"real\": " << x.real << ", \"synthetic\": " << x.synthetic
-        << ", \"entries\": " << x.entries << ", \"index_bytes\": " << x.index_bytes
-        << ", \"rss_online_bytes\": " << x.rss_online << ", \"rss_loaded_bytes\": " << x.rss_loaded
-        << ", \"insert_us\": {\"mean\": " << x.insert_us.mean << ", \"median\": " << x.insert_us.median
-        << ", \"p95\": " << x.insert_us.p95 << "}, \"save_ms\": " << x.save_ms
-        << ", \"load_cold_ms\": " << x.load_cold_ms << ", \"load_warm_ms\": " << x.load_warm_ms
-        << ", \"file_bytes\": " << x.file_bytes << ", \"top1_agreement\": " << x.top1_agreement
-        << ", \"query_ms\": [";
+      j << "      {\"images\": " << x.images << ", \"real\": " << x.real
+        << ", \"synthetic\": " << x.synthetic << ", \"entries\": " << x.entries
+        << ", \"index_bytes\": " << x.index_bytes << ", \"rss_online_bytes\": " << x.rss_online
+        << ", \"rss_loaded_bytes\": " << x.rss_loaded
+        << ", \"insert_us\": {\"mean\": " << x.insert_us.mean
+        << ", \"median\": " << x.insert_us.median << ", \"p95\": " << x.insert_us.p95
+        << "}, \"save_ms\": " << x.save_ms << ", \"load_cold_ms\": " << x.load_cold_ms
+        << ", \"load_warm_ms\": " << x.load_warm_ms << ", \"file_bytes\": " << x.file_bytes
+        << ", \"top1_agreement\": " << x.top1_agreement << ", \"query_ms\": [";
       for (size_t q = 0; q < x.query.size(); ++q) {
-        j << (q ? ", " : "") << "{\"threads\": " << x.query[q].threads << ", \"median\": " << x.query[q].ms.median
-          << ", \"p95\": " << x.query[q].ms.p95 << ", \"mean\": " << x.query[q].ms.mean << "}";
+        j << (q ? ", " : "") << "{\"threads\": " << x.query[q].threads
+          << ", \"median\": " << x.query[q].ms.median << ", \"p95\": " << x.query[q].ms.p95
+          << ", \"mean\": " << x.query[q].ms.mean << "}";
       }
       j << "]}" << (s + 1 < r.sizes.size() ? "," : "") << "\n";
     }
@@ -316,30 +326,41 @@ std::string Markdown(const std::vector<PresetResult>& results, size_t real_image
   m << "## Scaling: 1,000 to 1,000,000 database images (`gtbow bench`)\n\n";
   m << "The first " << real_images
     << " images of each size are real (the dataset's database split); the rest are **synthetic**: "
-       "postings sampled from the rows, soft-assignment weights and orientations of the real images' "
+       "postings sampled from the rows, soft-assignment weights and orientations of the real "
+       "images' "
        "keypoints (same surface), through the encoder's tf-idf. Queries: "
     << n_queries << " real images of `" << query_split
     << "`, top 10 with matches. Memory is the growth of the process's resident set once the saved "
-       "index is loaded (memory-mapped) and queried; \"online index\" is the index's own size after "
+       "index is loaded (memory-mapped) and queried; \"online index\" is the index's own size "
+       "after "
        "insertion, spare capacity included. Load \"cold\" is after evicting the file from the page "
        "cache; every load verifies every checksum. \"top-1 same\": queries whose best image is the "
        "one found at the largest all-real size (synthetic images do not displace it).\n\n";
   for (const PresetResult& r : results) {
     m << "### " << r.name << " (r = " << r.config.bow.soft_assignment << ", "
       << (r.config.bow.compact_postings ? "compact 6-byte" : "precise 8-byte") << " entries)\n\n";
-    m << "| images | synthetic | memory (loaded) | bytes / image | online index | insert median / p95 (us) "
-         "| query median / p95, 1 thread (ms) | query median / p95, 2 threads (ms) | save (s) | load cold / warm (s) | top-1 same |\n";
+    m << "| images | synthetic | memory (loaded) | bytes / image | online index | insert median / "
+         "p95 (us) "
+         "| query median / p95, 1 thread (ms) | query median / p95, 2 threads (ms) | save (s) | "
+         "load cold / warm (s) | top-1 same |\n";
     m << "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |\n";
     for (const SizeResult& x : r.sizes) {
-      std::snprintf(b, sizeof(b),
-                    "| %zu | %zu | %s | %.0f | %s | %.1f / %.1f | %.2f / %.2f | %.2f / %.2f | %.2f | %s / %.2f | %s |\n",
-                    x.images, x.synthetic, Human(static_cast<double>(x.rss_loaded)).c_str(),
-                    static_cast<double>(x.rss_loaded) / x.images, Human(static_cast<double>(x.index_bytes)).c_str(),
-                    x.insert_us.median, x.insert_us.p95, x.query[0].ms.median, x.query[0].ms.p95,
-                    x.query[1].ms.median, x.query[1].ms.p95, x.save_ms / 1000.0,
-                    x.load_cold_ms >= 0 ? (std::to_string(x.load_cold_ms / 1000.0).substr(0, 4)).c_str() : "-",
-                    x.load_warm_ms / 1000.0,
-                    x.top1_agreement >= 0 ? (std::to_string(static_cast<int>(std::lround(100 * x.top1_agreement))) + "%").c_str() : "-");
+      std::snprintf(
+          b, sizeof(b),
+          "| %zu | %zu | %s | %.0f | %s | %.1f / %.1f | %.2f / %.2f | %.2f / %.2f | %.2f | %s / "
+          "%.2f | %s |\n",
+          x.images, x.synthetic, Human(static_cast<double>(x.rss_loaded)).c_str(),
+          static_cast<double>(x.rss_loaded) / x.images,
+          Human(static_cast<double>(x.index_bytes)).c_str(), x.insert_us.median, x.insert_us.p95,
+          x.query[0].ms.median, x.query[0].ms.p95, x.query[1].ms.median, x.query[1].ms.p95,
+          x.save_ms / 1000.0,
+          x.load_cold_ms >= 0 ? (std::to_string(x.load_cold_ms / 1000.0).substr(0, 4)).c_str()
+                              : "-",
+          x.load_warm_ms / 1000.0,
+          x.top1_agreement >= 0
+              ? (std::to_string(static_cast<int>(std::lround(100 * x.top1_agreement))) + "%")
+                    .c_str()
+              : "-");
       m << b;
     }
     m << "\n";
@@ -350,14 +371,18 @@ std::string Markdown(const std::vector<PresetResult>& results, size_t real_image
 void RunScaling(ScalingArgs a) {
   std::sort(a.sizes.begin(), a.sizes.end());
   a.sizes.erase(std::unique(a.sizes.begin(), a.sizes.end()), a.sizes.end());
-  if (a.sizes.empty() || a.sizes.front() == 0) throw std::invalid_argument("--sizes: give positive sizes");
+  if (a.sizes.empty() || a.sizes.front() == 0)
+    throw std::invalid_argument("--sizes: give positive sizes");
   if (a.sizes.back() > BowDatabase::kMaxImages) {
-    throw std::invalid_argument("--sizes: at most " + std::to_string(BowDatabase::kMaxImages) + " images");
+    throw std::invalid_argument("--sizes: at most " + std::to_string(BowDatabase::kMaxImages) +
+                                " images");
   }
   std::vector<std::pair<std::string, RetrievalConfig>> presets;
-  for (const auto& p : a.presets) presets.emplace_back(fs::path(p).stem().string(), LoadRetrievalConfig(p));
+  for (const auto& p : a.presets)
+    presets.emplace_back(fs::path(p).stem().string(), LoadRetrievalConfig(p));
   if (presets.empty()) {
-    presets.emplace_back("high_accuracy", LoadRetrievalConfig(GTBOW_CONFIG_DIR "/high_accuracy.yaml"));
+    presets.emplace_back("high_accuracy",
+                         LoadRetrievalConfig(GTBOW_CONFIG_DIR "/high_accuracy.yaml"));
     presets.emplace_back("fast", LoadRetrievalConfig(GTBOW_CONFIG_DIR "/fast.yaml"));
   }
   const fs::path out = a.out;
@@ -399,10 +424,12 @@ void RunScaling(ScalingArgs a) {
   std::fputs(md.c_str(), stdout);
   if (!a.no_plot) {
     const std::string cmd = "/usr/bin/python3 " GTBOW_SCRIPTS_DIR "/plot_scaling.py '" +
-                            (out / "scaling.json").string() + "' '" + (out / "scaling.png").string() + "'";
+                            (out / "scaling.json").string() + "' '" +
+                            (out / "scaling.png").string() + "'";
     if (std::system(cmd.c_str()) != 0) std::fprintf(stderr, "plot: %s failed\n", cmd.c_str());
   }
-  std::fprintf(stderr, "results in %s: scaling.json, scaling.md%s\n", out.c_str(), a.no_plot ? "" : ", scaling.png");
+  std::fprintf(stderr, "results in %s: scaling.json, scaling.md%s\n", out.c_str(),
+               a.no_plot ? "" : ", scaling.png");
 }
 
 }  // namespace
@@ -410,16 +437,25 @@ void RunScaling(ScalingArgs a) {
 void RegisterBenchScaling(CLI::App& app) {
   auto a = std::make_shared<ScalingArgs>();
   CLI::App* cmd = app.add_subcommand(
-      "bench", "Scaling benchmark: memory, insertion, query, save and load from 1,000 to 1,000,000 images");
-  cmd->add_option("--dataset", a->dataset, "Dataset with database and query splits (real images)")->required();
-  cmd->add_option("--vocab", a->vocab, "Vocabulary file (default: train on the train split, cached)");
-  cmd->add_option("--preset", a->presets, "Retrieval configuration YAML (repeatable; default: high accuracy and fast)");
-  cmd->add_option("--sizes", a->sizes, "Database sizes; beyond the real images, synthetic")->delimiter(',')->capture_default_str();
-  cmd->add_option("--query-split", a->query_split, "Split to draw queries from (default: the first query split)");
+      "bench",
+      "Scaling benchmark: memory, insertion, query, save and load from 1,000 to 1,000,000 images");
+  cmd->add_option("--dataset", a->dataset, "Dataset with database and query splits (real images)")
+      ->required();
+  cmd->add_option("--vocab", a->vocab,
+                  "Vocabulary file (default: train on the train split, cached)");
+  cmd->add_option("--preset", a->presets,
+                  "Retrieval configuration YAML (repeatable; default: high accuracy and fast)");
+  cmd->add_option("--sizes", a->sizes, "Database sizes; beyond the real images, synthetic")
+      ->delimiter(',')
+      ->capture_default_str();
+  cmd->add_option("--query-split", a->query_split,
+                  "Split to draw queries from (default: the first query split)");
   cmd->add_option("--queries", a->queries, "Queries timed at each size")->capture_default_str();
   cmd->add_option("-j,--threads", a->threads, "Threads for encoding and synthesis, 0 = all cores");
-  cmd->add_option("-o,--out", a->out, "Output directory: scaling.json, scaling.md, scaling.png")->capture_default_str();
-  cmd->add_option("--cache", a->cache, "Feature and vocabulary cache directory")->capture_default_str();
+  cmd->add_option("-o,--out", a->out, "Output directory: scaling.json, scaling.md, scaling.png")
+      ->capture_default_str();
+  cmd->add_option("--cache", a->cache, "Feature and vocabulary cache directory")
+      ->capture_default_str();
   cmd->add_flag("--no-cache", a->no_cache, "Neither read nor write the cache");
   cmd->add_flag("--no-plot", a->no_plot, "Skip the PNG plot");
   cmd->add_flag("--warm-only", a->warm_only, "Skip the cold (page cache evicted) load");

@@ -10,7 +10,7 @@ namespace tools {
 void RegisterSynth(CLI::App& app);
 void RegisterTrainVocab(CLI::App& app);
 void RegisterBenchRetrieval(CLI::App& app);
-void RegisterBenchScaling(CLI::App& app);   // gtbow bench
+void RegisterBenchScaling(CLI::App& app);  // gtbow bench
 void RegisterEval(CLI::App& app);
 
 }  // namespace tools

@@ -18,16 +18,16 @@
 #include <thread>
 
 #include "commands.h"
-#include "json_writer.h"
-#include "ground_texture_bow/core/parallel.h"
 #include "ground_texture_bow/core/binary_io.h"
 #include "ground_texture_bow/core/config.h"
 #include "ground_texture_bow/core/database.h"
 #include "ground_texture_bow/core/file_util.h"
-#include "ground_texture_bow/eval/metrics.h"
+#include "ground_texture_bow/core/parallel.h"
 #include "ground_texture_bow/core/pose.h"
 #include "ground_texture_bow/core/progress.h"
+#include "ground_texture_bow/eval/metrics.h"
 #include "image_source.h"
+#include "json_writer.h"
 #include "paper_reference.h"
 #include "timing.h"
 
@@ -141,7 +141,6 @@ std::unique_ptr<Vocabulary> GetVocabulary(const EvalArgs& a, const RetrievalConf
   return DatasetVocabulary(r, c, desc);
 }
 
-
 PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const Dataset& ds,
                         const std::vector<std::string>& splits, std::string* rankings,
                         std::string* poses) {
@@ -167,8 +166,8 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
   for (const auto& split : splits) {
     ImageSource q_src = ImageSource::FromDataset(a.dataset, split);
     q_src.Subsample(a.max_queries);
-    q_vecs_all.push_back(
-        EncodeAll(enc, ExtractAllCached(q_src, c.features, cache, a.threads, !a.quiet), a.threads, !a.quiet));
+    q_vecs_all.push_back(EncodeAll(
+        enc, ExtractAllCached(q_src, c.features, cache, a.threads, !a.quiet), a.threads, !a.quiet));
     q_sources.push_back(std::move(q_src));
   }
 
@@ -216,7 +215,9 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
   }
   pr.db_images = db.size();
   MapAccess map;
-  map.keypoints = [&](uint32_t i) -> const std::vector<Keypoint>& { return db_feats.at(i).keypoints; };
+  map.keypoints = [&](uint32_t i) -> const std::vector<Keypoint>& {
+    return db_feats.at(i).keypoints;
+  };
   map.pose = [&](uint32_t i) { return db_pose.at(i); };
   LocalizationOptions lo;
   lo.candidates = a.candidates;
@@ -275,7 +276,8 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
         ++sr.counted;
         sr.map += p.ap;
         for (size_t k = 0; k < p.hits.size(); ++k) sr.recall[k] += p.hits[k];
-        for (const auto& [score, rel] : p.top10) (rel ? sr.rel_scores : sr.irr_scores).push_back(score);
+        for (const auto& [score, rel] : p.top10)
+          (rel ? sr.rel_scores : sr.irr_scores).push_back(score);
         sr.disjoint_scores.insert(sr.disjoint_scores.end(), p.disjoint.begin(), p.disjoint.end());
       } else {
         ++sr.no_relevant;
@@ -292,13 +294,14 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
       const std::string& qn = q_src.name(qi);
       char b[256];
       for (size_t k = 0; k < p.ranking.size(); ++k) {
-        std::snprintf(b, sizeof(b), ",%zu,%s,%.9g\n", k + 1, db_src.name(p.ranking[k].image).c_str(),
-                      p.ranking[k].score);
+        std::snprintf(b, sizeof(b), ",%zu,%s,%.9g\n", k + 1,
+                      db_src.name(p.ranking[k].image).c_str(), p.ranking[k].score);
         *rankings += qn + b;
       }
       if (p.loc.success) {
         const Pose2D& e = p.loc.estimate.floor_from_query;
-        std::snprintf(b, sizeof(b), ",%.6f,%.6f,%.6f,%d\n", e.x, e.y, e.theta, p.loc.estimate.inliers);
+        std::snprintf(b, sizeof(b), ",%.6f,%.6f,%.6f,%d\n", e.x, e.y, e.theta,
+                      p.loc.estimate.inliers);
         *poses += qn + b;
       } else {
         *poses += qn + ",,,,0\n";
@@ -358,7 +361,14 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
 
 void WriteStat(Json& j, const std::string& key, const TimingStats& s) {
   j.Key(key).Open('{');
-  j.Key("mean_ms").Num(s.mean).Key("sd_ms").Num(s.sd).Key("median_ms").Num(s.median).Key("p95_ms").Num(s.p95);
+  j.Key("mean_ms")
+      .Num(s.mean)
+      .Key("sd_ms")
+      .Num(s.sd)
+      .Key("median_ms")
+      .Num(s.median)
+      .Key("p95_ms")
+      .Num(s.p95);
   j.Close('}');
 }
 
@@ -368,7 +378,10 @@ std::string ToJson(const EvalArgs& a, const Dataset& ds, const std::vector<Prese
   j.Key("dataset").Open('{');
   j.Key("path").Str(fs::absolute(a.dataset).string());
   j.Key("name").Str(ds.info().name).Key("surface").Str(ds.info().surface);
-  j.Key("image_width").Int(ds.info().geometry.width).Key("image_height").Int(ds.info().geometry.height);
+  j.Key("image_width")
+      .Int(ds.info().geometry.width)
+      .Key("image_height")
+      .Int(ds.info().geometry.height);
   j.Key("meters_per_pixel").Num(ds.info().geometry.meters_per_pixel);
   j.Close('}');
   j.Key("protocol").Open('{');
@@ -396,7 +409,10 @@ std::string ToJson(const EvalArgs& a, const Dataset& ds, const std::vector<Prese
       j.Key("recall_at_n").Nums(s.recall);
       j.Key("separation").Open('{').Key("threshold").Num(s.separation.threshold);
       j.Key("kept_relevant").Num(s.separation.kept_relevant).Close('}');
-      j.Key("separation_vs_disjoint").Open('{').Key("threshold").Num(s.separation_disjoint.threshold);
+      j.Key("separation_vs_disjoint")
+          .Open('{')
+          .Key("threshold")
+          .Num(s.separation_disjoint.threshold);
       j.Key("kept_relevant").Num(s.separation_disjoint.kept_relevant).Close('}');
       j.Key("top10_scores_relevant").Nums(s.rel_scores);
       j.Key("top10_scores_irrelevant").Nums(s.irr_scores);
@@ -459,7 +475,8 @@ std::string ToMarkdown(const EvalArgs& a, const std::vector<PresetResult>& resul
       for (const auto& r : kPaperAblation) {
         if (pr.table_row == r.name) paper = r.map;
       }
-      std::snprintf(b, sizeof(b), "| %s | %s | %.3f |", pr.table_row.c_str(), pr.name.c_str(), paper);
+      std::snprintf(b, sizeof(b), "| %s | %s | %.3f |", pr.table_row.c_str(), pr.name.c_str(),
+                    paper);
       md << b;
       for (const auto& s : pr.splits) {
         std::snprintf(b, sizeof(b), " %.3f |", s.map);
@@ -472,31 +489,37 @@ std::string ToMarkdown(const EvalArgs& a, const std::vector<PresetResult>& resul
   for (const auto& pr : results) {
     md << "## " << pr.name << "\n\n";
     md << "Database: " << pr.db_images << " images. Vocabulary: " << pr.vocab_desc << ".\n\n";
-    md << "| split | day | queries | mAP@1000 | R@1 | R@5 | R@10 | R@100 | separation (paper " << std::fixed
-       << std::setprecision(1) << 100 * PaperSeparationFor(pr.config)
+    md << "| split | day | queries | mAP@1000 | R@1 | R@5 | R@10 | R@100 | separation (paper "
+       << std::fixed << std::setprecision(1) << 100 * PaperSeparationFor(pr.config)
        << "%) | sep. vs disjoint | localized | median error |\n";
     md << "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |\n";
     for (const auto& s : pr.splits) {
       std::vector<double> e = s.err_mm;
       std::sort(e.begin(), e.end());
-      std::snprintf(b, sizeof(b), "| %s | %s | %zu | %.3f | %.3f | %.3f | %.3f | %.3f | %.1f%% | %.1f%% | %.1f%% | %s |\n",
-                    s.name.c_str(), std::isfinite(s.day) ? std::to_string(static_cast<int>(s.day)).c_str() : "-",
-                    s.counted, s.map, s.recall[0], s.recall[2], s.recall[3], s.recall[6],
-                    100 * s.separation.kept_relevant, 100 * s.separation_disjoint.kept_relevant,
-                    s.queries ? 100.0 * s.localized / s.queries : 0.0,
-                    e.empty() ? "-" : (std::to_string(e[e.size() / 2]).substr(0, 5) + " mm").c_str());
+      std::snprintf(
+          b, sizeof(b),
+          "| %s | %s | %zu | %.3f | %.3f | %.3f | %.3f | %.3f | %.1f%% | %.1f%% | %.1f%% | %s |\n",
+          s.name.c_str(),
+          std::isfinite(s.day) ? std::to_string(static_cast<int>(s.day)).c_str() : "-", s.counted,
+          s.map, s.recall[0], s.recall[2], s.recall[3], s.recall[6],
+          100 * s.separation.kept_relevant, 100 * s.separation_disjoint.kept_relevant,
+          s.queries ? 100.0 * s.localized / s.queries : 0.0,
+          e.empty() ? "-" : (std::to_string(e[e.size() / 2]).substr(0, 5) + " mm").c_str());
       md << b;
     }
     const PaperTiming& p = PaperTimingFor(pr.config);
-    md << "\nTiming over " << pr.timed << " random queries against the full database, one thread (ms; "
+    md << "\nTiming over " << pr.timed
+       << " random queries against the full database, one thread (ms; "
        << "paper: " << p.name << ", i7-13700, 32,251 images):\n\n";
-    md << "| stage | paper mean ± sd | here mean ± sd | here median | here p95 |\n| --- | --- | --- | --- | --- |\n";
+    md << "| stage | paper mean ± sd | here mean ± sd | here median | here p95 |\n| --- | --- | "
+          "--- | --- | --- |\n";
     auto row = [&](const char* name, const double* paper, const TimingStats& s) {
       if (paper != nullptr) {
-        std::snprintf(b, sizeof(b), "| %s | %.1f ± %.1f | %.3f ± %.3f | %.3f | %.3f |\n", name, paper[0], paper[1],
-                      s.mean, s.sd, s.median, s.p95);
+        std::snprintf(b, sizeof(b), "| %s | %.1f ± %.1f | %.3f ± %.3f | %.3f | %.3f |\n", name,
+                      paper[0], paper[1], s.mean, s.sd, s.median, s.p95);
       } else {
-        std::snprintf(b, sizeof(b), "| %s | - | %.3f ± %.3f | %.3f | %.3f |\n", name, s.mean, s.sd, s.median, s.p95);
+        std::snprintf(b, sizeof(b), "| %s | - | %.3f ± %.3f | %.3f | %.3f |\n", name, s.mean, s.sd,
+                      s.median, s.p95);
       }
       md << b;
     };
@@ -506,15 +529,18 @@ std::string ToMarkdown(const EvalArgs& a, const std::vector<PresetResult>& resul
     row("database query", p.query, pr.query);
     row("pose estimation", nullptr, pr.pose);
     row("end to end (extraction, transform, query, pose)", nullptr, pr.total);
-    std::snprintf(b, sizeof(b), "\nEnd-to-end localization rate: %.1f Hz (median), paper: over 5 Hz.\n\n",
+    std::snprintf(b, sizeof(b),
+                  "\nEnd-to-end localization rate: %.1f Hz (median), paper: over 5 Hz.\n\n",
                   pr.total.median > 0 ? 1000.0 / pr.total.median : 0.0);
     md << b;
     md << "Scaling (the paper's Fig. 3): insertion over the last 1,000 insertions, query over "
-       << kScalingQueries << " queries, ms.\n\n| database images | insertion mean | insertion p95 | query median | query p95 |\n"
+       << kScalingQueries
+       << " queries, ms.\n\n| database images | insertion mean | insertion p95 | query median | "
+          "query p95 |\n"
        << "| --- | --- | --- | --- | --- |\n";
     for (const auto& sp : pr.scaling) {
-      std::snprintf(b, sizeof(b), "| %zu | %.3f | %.3f | %.3f | %.3f |\n", sp.images, sp.insert.mean,
-                    sp.insert.p95, sp.query.median, sp.query.p95);
+      std::snprintf(b, sizeof(b), "| %zu | %.3f | %.3f | %.3f | %.3f |\n", sp.images,
+                    sp.insert.mean, sp.insert.p95, sp.query.median, sp.query.p95);
       md << b;
     }
     md << "\n";
@@ -530,13 +556,15 @@ void RunEval(const EvalArgs& a) {
       if (s.rfind("query", 0) == 0) splits.push_back(s);
     }
   }
-  if (splits.empty()) throw std::runtime_error(a.dataset + ": no query splits (sequences/query*.txt)");
+  if (splits.empty())
+    throw std::runtime_error(a.dataset + ": no query splits (sequences/query*.txt)");
   (void)ds.Split("database");  // a clear error now rather than after training
   for (const auto& s : splits) (void)ds.Split(s);
   std::vector<std::string> presets = a.presets;
   std::vector<std::string> rows(presets.size());
   if (a.ablation) {
-    if (!presets.empty()) throw std::invalid_argument("--ablation runs its own presets; drop --preset");
+    if (!presets.empty())
+      throw std::invalid_argument("--ablation runs its own presets; drop --preset");
     for (const auto& [row, file] : kAblation) {
       rows.push_back(row);
       presets.push_back(std::string(GTBOW_CONFIG_DIR "/") + file);
@@ -561,9 +589,12 @@ void RunEval(const EvalArgs& a) {
       auto target = [&](const std::string& file) {
         if (presets.size() == 1) return file;
         fs::path f(file);
-        return (f.parent_path() / (f.stem().string() + "." + fs::path(p).stem().string() + f.extension().string())).string();
+        return (f.parent_path() /
+                (f.stem().string() + "." + fs::path(p).stem().string() + f.extension().string()))
+            .string();
       };
-      if (!a.dump_rankings.empty()) dumps.emplace_back(target(a.dump_rankings), std::move(rankings));
+      if (!a.dump_rankings.empty())
+        dumps.emplace_back(target(a.dump_rankings), std::move(rankings));
       if (!a.dump_poses.empty()) dumps.emplace_back(target(a.dump_poses), std::move(poses));
     }
     WriteFileAtomic(staging / "results.json", ToJson(a, ds, results));
@@ -580,10 +611,12 @@ void RunEval(const EvalArgs& a) {
     const std::string cmd = "/usr/bin/python3 " GTBOW_SCRIPTS_DIR "/plot_eval.py '" +
                             (fs::path(a.out) / "results.json").string() + "' '" + a.out + "'";
     if (std::system(cmd.c_str()) != 0) {
-      std::fprintf(stderr, "plots: %s failed (results.json and summary.md are written)\n", cmd.c_str());
+      std::fprintf(stderr, "plots: %s failed (results.json and summary.md are written)\n",
+                   cmd.c_str());
     }
   }
-  std::printf("Results in %s: results.json, summary.md%s\n", a.out.c_str(), a.no_plots ? "" : ", *.png");
+  std::printf("Results in %s: results.json, summary.md%s\n", a.out.c_str(),
+              a.no_plots ? "" : ", *.png");
 }
 
 }  // namespace
@@ -592,24 +625,40 @@ void RegisterEval(CLI::App& app) {
   auto a = std::make_shared<EvalArgs>();
   CLI::App* cmd = app.add_subcommand(
       "eval", "Every metric of the evaluation protocol: retrieval, localization and timing");
-  cmd->add_option("--dataset", a->dataset, "Dataset (docs/DATASET_FORMAT.md) with database and query splits")->required();
-  cmd->add_option("--vocab", a->vocab, "Vocabulary file (default: train on the dataset's train split)");
-  cmd->add_option("--preset", a->presets, "Retrieval configuration YAML (repeatable); default: high accuracy");
-  cmd->add_option("-o,--out", a->out, "Output directory (results.json, summary.md, plots)")->capture_default_str();
-  cmd->add_option("--query-splits", a->query_splits, "Query splits (default: every query* split)")->delimiter(',');
-  cmd->add_option("--max-queries", a->max_queries, "At most this many queries per split (evenly spread)");
-  cmd->add_option("--timing-queries", a->timing_queries, "Random queries timed against the full database")->capture_default_str();
-  cmd->add_option("--candidates", a->candidates, "K: retrieved images verified by pose estimation")->capture_default_str();
+  cmd->add_option("--dataset", a->dataset,
+                  "Dataset (docs/DATASET_FORMAT.md) with database and query splits")
+      ->required();
+  cmd->add_option("--vocab", a->vocab,
+                  "Vocabulary file (default: train on the dataset's train split)");
+  cmd->add_option("--preset", a->presets,
+                  "Retrieval configuration YAML (repeatable); default: high accuracy");
+  cmd->add_option("-o,--out", a->out, "Output directory (results.json, summary.md, plots)")
+      ->capture_default_str();
+  cmd->add_option("--query-splits", a->query_splits, "Query splits (default: every query* split)")
+      ->delimiter(',');
+  cmd->add_option("--max-queries", a->max_queries,
+                  "At most this many queries per split (evenly spread)");
+  cmd->add_option("--timing-queries", a->timing_queries,
+                  "Random queries timed against the full database")
+      ->capture_default_str();
+  cmd->add_option("--candidates", a->candidates, "K: retrieved images verified by pose estimation")
+      ->capture_default_str();
   cmd->add_option("--min-inliers", a->min_inliers, "Inliers a pose needs")->capture_default_str();
-  cmd->add_option("-j,--threads", a->threads, "Threads for extraction and evaluation, 0 = all cores (timing uses one)");
-  cmd->add_option("--cache", a->cache, "Feature and vocabulary cache directory")->capture_default_str();
+  cmd->add_option("-j,--threads", a->threads,
+                  "Threads for extraction and evaluation, 0 = all cores (timing uses one)");
+  cmd->add_option("--cache", a->cache, "Feature and vocabulary cache directory")
+      ->capture_default_str();
   cmd->add_flag("--no-cache", a->no_cache, "Neither read nor write the cache");
   cmd->add_flag("--no-plots", a->no_plots, "Skip the PNG plots");
-  cmd->add_option("--words", a->words, "Override V of AKM vocabularies trained here (small datasets)");
+  cmd->add_option("--words", a->words,
+                  "Override V of AKM vocabularies trained here (small datasets)");
   cmd->add_flag("--ablation", a->ablation,
                 "Run the paper's Table I rows (presets under config/ and config/ablation/)");
-  cmd->add_option("--dump-rankings", a->dump_rankings, "CSV of every query's ranked results (query,rank,image,score; top 1000)");
-  cmd->add_option("--dump-poses", a->dump_poses, "CSV of every query's estimated pose (query,x,y,theta,inliers; empty pose: no estimate)");
+  cmd->add_option("--dump-rankings", a->dump_rankings,
+                  "CSV of every query's ranked results (query,rank,image,score; top 1000)");
+  cmd->add_option(
+      "--dump-poses", a->dump_poses,
+      "CSV of every query's estimated pose (query,x,y,theta,inliers; empty pose: no estimate)");
   cmd->add_flag("-q,--quiet", a->quiet, "No progress bars");
   cmd->callback([a]() { RunEval(*a); });
 }

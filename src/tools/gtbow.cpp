@@ -13,8 +13,9 @@ int main(int argc, char** argv) {
   // rather than returning them to the kernel (and page-faulting them back) every time.
   mallopt(M_MMAP_THRESHOLD, 512 << 20);
   mallopt(M_TRIM_THRESHOLD, 1024 << 20);
-  CLI::App app{"gtbow: ground-texture bag-of-words tools (dataset synthesis, vocabularies, "
-               "maps, evaluation)"};
+  CLI::App app{
+      "gtbow: ground-texture bag-of-words tools (dataset synthesis, vocabularies, "
+      "maps, evaluation)"};
   app.require_subcommand(1);
   gtbow::tools::RegisterSynth(app);
   gtbow::tools::RegisterTrainVocab(app);

@@ -12,8 +12,8 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
-#include "ground_texture_bow/core/parallel.h"
 #include "ground_texture_bow/core/binary_io.h"
+#include "ground_texture_bow/core/parallel.h"
 #include "ground_texture_bow/core/progress.h"
 
 namespace fs = std::filesystem;
@@ -37,8 +37,8 @@ ImageSource ImageSource::FromFolder(const fs::path& folder) {
   for (const auto& e : fs::directory_iterator(folder)) {
     std::string ext = e.path().extension().string();
     std::transform(ext.begin(), ext.end(), ext.begin(), ::tolower);
-    if (e.is_regular_file() && (ext == ".png" || ext == ".jpg" || ext == ".jpeg" ||
-                                ext == ".bmp" || ext == ".tif" || ext == ".tiff")) {
+    if (e.is_regular_file() && (ext == ".png" || ext == ".jpg" || ext == ".jpeg" || ext == ".bmp" ||
+                                ext == ".tif" || ext == ".tiff")) {
       s.names_.push_back(e.path().filename().string());
     }
   }
@@ -113,7 +113,8 @@ void SaveFeatures(const fs::path& path, const std::vector<ImageFeatures>& feats)
 }
 
 std::vector<ImageFeatures> LoadFeatures(const fs::path& path, size_t expected) {
-  const FramedPayload p = ReadFramedFile(path, kFeatureCacheMagic, kFeatureCacheVersion, "feature cache");
+  const FramedPayload p =
+      ReadFramedFile(path, kFeatureCacheMagic, kFeatureCacheVersion, "feature cache");
   BinaryReader r(p.data(), p.size(), path.string());
   if (r.Get<uint64_t>() != expected) r.Fail("image count does not match");
   std::vector<ImageFeatures> feats(expected);
@@ -126,7 +127,8 @@ std::vector<ImageFeatures> LoadFeatures(const fs::path& path, size_t expected) {
     }
     f.descriptors.create(rows, cols, type);
     auto bytes = r.GetVector<uint8_t>(static_cast<uint64_t>(rows) * cols * 4);
-    if (bytes.size() != f.descriptors.total() * f.descriptors.elemSize()) r.Fail("descriptor size mismatch");
+    if (bytes.size() != f.descriptors.total() * f.descriptors.elemSize())
+      r.Fail("descriptor size mismatch");
     if (!bytes.empty()) std::memcpy(f.descriptors.data, bytes.data(), bytes.size());
   }
   if (r.remaining() != 0) r.Fail("unexpected trailing data");
@@ -140,10 +142,12 @@ fs::path DefaultCacheDir() {
     return fs::path(x) / "ground_texture_bow";
   }
   const char* home = std::getenv("HOME");
-  return fs::path(home != nullptr && *home != '\0' ? home : "/tmp") / ".cache" / "ground_texture_bow";
+  return fs::path(home != nullptr && *home != '\0' ? home : "/tmp") / ".cache" /
+         "ground_texture_bow";
 }
 
-std::vector<ImageFeatures> ExtractAllCached(const ImageSource& source, const FeatureOptions& options,
+std::vector<ImageFeatures> ExtractAllCached(const ImageSource& source,
+                                            const FeatureOptions& options,
                                             const fs::path& cache_dir, int threads, bool progress) {
   if (cache_dir.empty()) return ExtractAll(source, options, threads, progress);
   RetrievalConfig key_config;
@@ -173,7 +177,8 @@ std::vector<ImageFeatures> ExtractAllCached(const ImageSource& source, const Fea
 }
 
 std::unique_ptr<Vocabulary> TrainOnFeatures(const RetrievalConfig& c,
-                                            const std::vector<ImageFeatures>& feats, bool progress) {
+                                            const std::vector<ImageFeatures>& feats,
+                                            bool progress) {
   size_t total = 0;
   for (const auto& f : feats) total += f.size();
   if (total == 0) throw std::runtime_error("no features found in the training images");
@@ -217,7 +222,7 @@ std::vector<BowVector> EncodeAll(const BowEncoder& encoder, const std::vector<Im
 // The vocabulary for a configuration: the given file, or one trained on the dataset's train
 // split (cached under the cache directory, keyed by the training images and options).
 std::unique_ptr<Vocabulary> DatasetVocabulary(const VocabularyRequest& a, const RetrievalConfig& c,
-                                             std::string* desc) {
+                                              std::string* desc) {
   if (!a.file.empty()) {
     // A given vocabulary serves every preset of its kind and metric; others are trained.
     auto v = Vocabulary::Load(a.file);
@@ -235,7 +240,8 @@ std::unique_ptr<Vocabulary> DatasetVocabulary(const VocabularyRequest& a, const 
   }
   const auto splits = Dataset::Load(a.dataset).SplitNames();
   if (std::find(splits.begin(), splits.end(), "train") == splits.end()) {
-    throw std::runtime_error(a.dataset + ": no train split to train a vocabulary on; give --vocab FILE");
+    throw std::runtime_error(a.dataset +
+                             ": no train split to train a vocabulary on; give --vocab FILE");
   }
   ImageSource src = ImageSource::FromDataset(a.dataset, "train");
   RetrievalConfig key;
@@ -243,7 +249,8 @@ std::unique_ptr<Vocabulary> DatasetVocabulary(const VocabularyRequest& a, const 
   key.vocabulary.threads = 0;
   // Size thresholds are learned for percentile bins only; other bins share one vocabulary.
   if (c.bow.size_binning == SizeBinning::kPercentile) key.bow.num_size_bins = c.bow.num_size_bins;
-  std::string opt = FormatRetrievalConfig(key) + FormatRetrievalConfig(RetrievalConfig{c.features, {}, {}});
+  std::string opt =
+      FormatRetrievalConfig(key) + FormatRetrievalConfig(RetrievalConfig{c.features, {}, {}});
   // The key predates bow.compact_postings, which does not touch the vocabulary: leave the line
   // out so that vocabularies cached before it stay valid (AKM training is not bit-reproducible).
   for (size_t at; (at = opt.find("  compact_postings: true\n")) != std::string::npos;) {

@@ -9,8 +9,8 @@
 
 #include "ground_texture_bow/core/bow.h"
 #include "ground_texture_bow/core/config.h"
-#include "ground_texture_bow/eval/dataset.h"
 #include "ground_texture_bow/core/features.h"
+#include "ground_texture_bow/eval/dataset.h"
 
 namespace gtbow {
 namespace tools {
@@ -47,7 +47,8 @@ std::vector<ImageFeatures> ExtractAll(const ImageSource& source, const FeatureOp
 // `cache_dir` (created when missing) in a file named by the images' ContentKey and the options,
 // and read back on the next call. An empty `cache_dir` disables the cache; a damaged or
 // unwritable cache is reported on stderr and bypassed, never fatal.
-std::vector<ImageFeatures> ExtractAllCached(const ImageSource& source, const FeatureOptions& options,
+std::vector<ImageFeatures> ExtractAllCached(const ImageSource& source,
+                                            const FeatureOptions& options,
                                             const std::filesystem::path& cache_dir, int threads,
                                             bool progress);
 
@@ -62,15 +63,17 @@ std::unique_ptr<Vocabulary> TrainOnFeatures(const RetrievalConfig& config,
                                             bool progress);
 
 // BoW vectors of every image's features on `threads` threads (0 = all cores).
-std::vector<BowVector> EncodeAll(const BowEncoder& encoder, const std::vector<ImageFeatures>& features,
-                                 int threads, bool progress);
+std::vector<BowVector> EncodeAll(const BowEncoder& encoder,
+                                 const std::vector<ImageFeatures>& features, int threads,
+                                 bool progress);
 
 // Where a command gets the vocabulary for a configuration on a dataset.
 struct VocabularyRequest {
   std::string file;                // a vocabulary file; empty: train on the dataset's train split
   bool train_other_kinds = false;  // a file of another kind or metric: train instead of failing
   std::string dataset;
-  std::filesystem::path cache;     // trained vocabularies and features are cached here; empty: no cache
+  std::filesystem::path
+      cache;  // trained vocabularies and features are cached here; empty: no cache
   int threads = 0;
   bool progress = true;
 };

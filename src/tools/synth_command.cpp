@@ -31,23 +31,28 @@ void RunSynth(SynthArgs& a) {
   o.camera.sensor_effects = !a.ideal;
   if (!a.photos.empty()) {
     if (a.surface_given || a.area_given || a.database_images != 0) {
-      throw std::invalid_argument("--photo makes the floor from photographs: --surface, --area and "
-                                  "--database-images do not apply");
+      throw std::invalid_argument(
+          "--photo makes the floor from photographs: --surface, --area and "
+          "--database-images do not apply");
     }
     o.photos.assign(a.photos.begin(), a.photos.end());
     o.train_photos.assign(a.train_photos.begin(), a.train_photos.end());
     if (o.train_photos.empty() && o.train_images > 0) {
-      throw std::invalid_argument("--photo: give training photos with --train-photo (other photos of the "
-                                  "same kind of floor), or --train 0");
+      throw std::invalid_argument(
+          "--photo: give training photos with --train-photo (other photos of the "
+          "same kind of floor), or --train 0");
     }
     o.Check();
     const synth::SynthSummary s = synth::GenerateDataset(o, a.out, a.force, !a.quiet);
     std::printf("Photo floor written to %s\n", a.out.c_str());
-    std::printf("  seed %llu, %zu map photo(s), %zu training photo(s), footprint %.1f x %.1f mm at %.3f mm/px\n",
-                static_cast<unsigned long long>(o.seed), o.photos.size(), o.train_photos.size(),
-                o.camera.width * o.camera.meters_per_pixel * 1e3,
-                o.camera.height * o.camera.meters_per_pixel * 1e3, o.camera.meters_per_pixel * 1e3);
-    for (const auto& [split, n] : s.split_sizes) std::printf("  %-28s %6zu images\n", split.c_str(), n);
+    std::printf(
+        "  seed %llu, %zu map photo(s), %zu training photo(s), footprint %.1f x %.1f mm at %.3f "
+        "mm/px\n",
+        static_cast<unsigned long long>(o.seed), o.photos.size(), o.train_photos.size(),
+        o.camera.width * o.camera.meters_per_pixel * 1e3,
+        o.camera.height * o.camera.meters_per_pixel * 1e3, o.camera.meters_per_pixel * 1e3);
+    for (const auto& [split, n] : s.split_sizes)
+      std::printf("  %-28s %6zu images\n", split.c_str(), n);
     std::printf("  %zu images, %.1f MB, in %.1f s\n", s.images, s.bytes / 1e6, s.seconds);
     return;
   }
@@ -74,7 +79,8 @@ void RunSynth(SynthArgs& a) {
     std::printf("  %-14s %7zu images\n", split.c_str(), n);
   }
   if (s.split_sizes.count("database") > 0) {
-    std::printf("  mean overlap of database neighbours: %.1f%%\n", 100.0 * s.mean_neighbour_overlap);
+    std::printf("  mean overlap of database neighbours: %.1f%%\n",
+                100.0 * s.mean_neighbour_overlap);
   }
   std::printf("  %zu images, %.1f MB, in %.1f s (%.1f images/s)\n", s.images, s.bytes / 1e6,
               s.seconds, s.images / std::max(1e-9, s.seconds));
@@ -91,12 +97,14 @@ void RegisterSynth(CLI::App& app) {
   cmd->add_option("--surface", args->surface, "asphalt, concrete, carpet, laminate (or flat)")
       ->capture_default_str()
       ->each([args](const std::string&) { args->surface_given = true; });
-  cmd->add_option("--photo", args->photos,
-                  "Make the floor from top-down photographs instead (repeatable): each is one bounded "
-                  "region of the map; queries are split per photo")
+  cmd->add_option(
+         "--photo", args->photos,
+         "Make the floor from top-down photographs instead (repeatable): each is one bounded "
+         "region of the map; queries are split per photo")
       ->check(CLI::ExistingFile);
-  cmd->add_option("--train-photo", args->train_photos,
-                  "Photographs for the train split (other photos of the same kind of floor; repeatable)")
+  cmd->add_option(
+         "--train-photo", args->train_photos,
+         "Photographs for the train split (other photos of the same kind of floor; repeatable)")
       ->check(CLI::ExistingFile);
   cmd->add_option("--photo-mpp", o.photo_meters_per_pixel,
                   "Ground size of a photo pixel, metres (default: --meters-per-pixel)");

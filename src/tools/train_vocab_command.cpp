@@ -28,7 +28,8 @@ struct TrainArgs {
 
 void RunTrain(const TrainArgs& a) {
   const auto start = std::chrono::steady_clock::now();
-  RetrievalConfig c = LoadRetrievalConfig(a.preset.empty() ? GTBOW_CONFIG_DIR "/high_accuracy.yaml" : a.preset);
+  RetrievalConfig c =
+      LoadRetrievalConfig(a.preset.empty() ? GTBOW_CONFIG_DIR "/high_accuracy.yaml" : a.preset);
   if (a.words > 0) c.vocabulary.num_words = a.words;
   if (a.seed >= 0) c.vocabulary.seed = static_cast<uint64_t>(a.seed);
   c.vocabulary.threads = a.threads;
@@ -44,7 +45,8 @@ void RunTrain(const TrainArgs& a) {
   for (const auto& f : feats) total += f.size();
   auto vocab = TrainOnFeatures(c, feats, !a.quiet);
   vocab->Save(a.out);
-  const double secs = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  const double secs =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   std::printf("Vocabulary written to %s\n", a.out.c_str());
   std::printf("  %s, metric %s, %u words, from %zu descriptors of %zu images, in %.1f s\n",
               VocabularyKindName(vocab->kind()).c_str(), MetricName(vocab->metric()).c_str(),
@@ -55,9 +57,11 @@ void RunTrain(const TrainArgs& a) {
 
 void RegisterTrainVocab(CLI::App& app) {
   auto a = std::make_shared<TrainArgs>();
-  CLI::App* cmd = app.add_subcommand("train-vocab", "Train a vocabulary on a dataset split or an image folder");
+  CLI::App* cmd =
+      app.add_subcommand("train-vocab", "Train a vocabulary on a dataset split or an image folder");
   cmd->add_option("-o,--out", a->out, "Output vocabulary file")->required();
-  cmd->add_option("--preset", a->preset, "Retrieval configuration YAML (config/*.yaml); default: high accuracy");
+  cmd->add_option("--preset", a->preset,
+                  "Retrieval configuration YAML (config/*.yaml); default: high accuracy");
   cmd->add_option("--dataset", a->dataset, "Dataset directory (docs/DATASET_FORMAT.md)");
   cmd->add_option("--split", a->split, "Dataset split to train on")->capture_default_str();
   cmd->add_option("--images", a->images, "Or: a folder of images");

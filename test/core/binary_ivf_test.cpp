@@ -35,9 +35,11 @@ Data Make(int v, int nq, uint32_t seed) {
       dst[bit / 8] ^= static_cast<uint8_t>(1 << (bit % 8));
     }
   };
-  for (int i = 0; i < v; ++i) perturb(c.ptr<uint8_t>(static_cast<int>(rng() % centres)), d.words.ptr<uint8_t>(i), 40);
+  for (int i = 0; i < v; ++i)
+    perturb(c.ptr<uint8_t>(static_cast<int>(rng() % centres)), d.words.ptr<uint8_t>(i), 40);
   d.queries.create(nq, 32, CV_8U);
-  for (int i = 0; i < nq; ++i) perturb(d.words.ptr<uint8_t>(static_cast<int>(rng() % v)), d.queries.ptr<uint8_t>(i), 30);
+  for (int i = 0; i < nq; ++i)
+    perturb(d.words.ptr<uint8_t>(static_cast<int>(rng() % v)), d.queries.ptr<uint8_t>(i), 30);
   return d;
 }
 
@@ -47,9 +49,11 @@ std::vector<WordHit> Brute(const cv::Mat& words, const cv::Mat& q, int r) {
   for (int i = 0; i < q.rows; ++i) {
     std::vector<WordHit> all;
     for (int w = 0; w < words.rows; ++w) {
-      all.push_back({static_cast<uint32_t>(w), static_cast<float>(HammingDistance(q.ptr<uint8_t>(i), words.ptr<uint8_t>(w), 32))});
+      all.push_back({static_cast<uint32_t>(w), static_cast<float>(HammingDistance(
+                                                   q.ptr<uint8_t>(i), words.ptr<uint8_t>(w), 32))});
     }
-    std::stable_sort(all.begin(), all.end(), [](const WordHit& a, const WordHit& b) { return a.distance < b.distance; });
+    std::stable_sort(all.begin(), all.end(),
+                     [](const WordHit& a, const WordHit& b) { return a.distance < b.distance; });
     out.insert(out.end(), all.begin(), all.begin() + r);
   }
   return out;

@@ -214,7 +214,8 @@ TEST(Bow, PerBinNormalisationWeighsEveryNonEmptySizeBinTheSame) {
   o.normalization = Normalization::kPerBin;
   const BowVector one_pb = BowEncoder(*v, o).Encode(f);
   ASSERT_EQ(one_gl.entries.size(), one_pb.entries.size());
-  for (size_t i = 0; i < one_gl.entries.size(); ++i) EXPECT_FLOAT_EQ(one_gl.entries[i].weight, one_pb.entries[i].weight);
+  for (size_t i = 0; i < one_gl.entries.size(); ++i)
+    EXPECT_FLOAT_EQ(one_gl.entries[i].weight, one_pb.entries[i].weight);
 }
 
 }  // namespace

@@ -3,8 +3,8 @@
 
 #include <gtest/gtest.h>
 
-#include <limits>
 #include <cstdio>
+#include <limits>
 #include <random>
 #include <vector>
 
@@ -18,7 +18,8 @@ int32_t Reference(const uint8_t* a, const uint8_t* b, int d) {
 }
 
 TEST(ByteDistance, KernelsMatchTheReferenceForEverySizeAndThreshold) {
-  std::printf("kernels on this CPU: portable%s%s\n", SimdKernelSupported(SimdKernel::kAvx2) ? ", avx2" : "",
+  std::printf("kernels on this CPU: portable%s%s\n",
+              SimdKernelSupported(SimdKernel::kAvx2) ? ", avx2" : "",
               SimdKernelSupported(SimdKernel::kAvx512) ? ", avx512-vnni" : "");
   std::mt19937 rng(7);
   for (int d : {2, 30, 32, 64}) {
@@ -40,8 +41,10 @@ TEST(ByteDistance, KernelsMatchTheReferenceForEverySizeAndThreshold) {
       std::vector<int16_t> pq(static_cast<size_t>(kPackedBlockRows) * d);
       PackQuery(q.data(), d, pq.data());
       std::vector<int32_t> ref(n);
-      for (int i = 0; i < n; ++i) ref[i] = Reference(q.data(), rows.data() + static_cast<size_t>(i) * d, d);
-      for (int32_t threshold : {0, 1, 65025 * d / 4, 65025 * d / 2, std::numeric_limits<int32_t>::max()}) {
+      for (int i = 0; i < n; ++i)
+        ref[i] = Reference(q.data(), rows.data() + static_cast<size_t>(i) * d, d);
+      for (int32_t threshold :
+           {0, 1, 65025 * d / 4, 65025 * d / 2, std::numeric_limits<int32_t>::max()}) {
         for (SimdKernel kernel : {SimdKernel::kPortable, SimdKernel::kAvx2, SimdKernel::kAvx512}) {
           if (!SimdKernelSupported(kernel)) continue;
           std::vector<uint32_t> idx(n + 1);
@@ -51,13 +54,14 @@ TEST(ByteDistance, KernelsMatchTheReferenceForEverySizeAndThreshold) {
           int expected = 0;
           for (int i = 0; i < n; ++i) {
             if (ref[i] >= threshold) continue;
-            ASSERT_LT(expected, m) << "kernel " << static_cast<int>(kernel) << " d " << d << " n " << n;
+            ASSERT_LT(expected, m)
+                << "kernel " << static_cast<int>(kernel) << " d " << d << " n " << n;
             EXPECT_EQ(idx[expected], static_cast<uint32_t>(i));
             EXPECT_EQ(dist[expected], ref[i]);
             ++expected;
           }
-          EXPECT_EQ(m, expected) << "kernel " << static_cast<int>(kernel) << " d " << d << " n " << n
-                                 << " threshold " << threshold;
+          EXPECT_EQ(m, expected) << "kernel " << static_cast<int>(kernel) << " d " << d << " n "
+                                 << n << " threshold " << threshold;
         }
       }
     }

@@ -96,8 +96,10 @@ TEST(Config, ErrorsNameFileLineAndKey) {
   expect("bow:\n  normalization: per_word\n", "unknown normalization 'per_word'");
   expect("features:\n  contrast: hdr\n", "unknown contrast 'hdr'");
   expect("features:\n  grid_cols: 4\n", "grid_cols and grid_rows");
-  expect("features:\n  type: sift\n  contrast: clahe\nvocabulary:\n  metric: l2\nbow:\n  size_binning: percentile\n",
-         "for ORB only");
+  expect(
+      "features:\n  type: sift\n  contrast: clahe\nvocabulary:\n  metric: l2\nbow:\n  "
+      "size_binning: percentile\n",
+      "for ORB only");
   expect("vocabulary:\n  kmeans_stop_fraction: 1.5\n", "kmeans_stop_fraction");
 }
 
@@ -142,8 +144,9 @@ TEST(Config, AVocabularyTrainedWithAnotherExtractorIsRefused) {
     ADD_FAILURE() << "a vocabulary of another extractor was accepted";
   } catch (const std::invalid_argument& e) {
     EXPECT_NE(std::string(e.what()).find("v.gtvoc"), std::string::npos) << e.what();
-    EXPECT_NE(std::string(e.what()).find("features.contrast: clahe (the vocabulary), none (the preset)"),
-              std::string::npos)
+    EXPECT_NE(
+        std::string(e.what()).find("features.contrast: clahe (the vocabulary), none (the preset)"),
+        std::string::npos)
         << e.what();
   }
 }

@@ -115,7 +115,8 @@ TEST_F(CrashSafety, SigkillAtRandomPointsOfASaveNeverCostsThePreviousMap) {
   for (int i = 0; i < 3; ++i) {
     const auto t0 = std::chrono::steady_clock::now();
     new_map->Save(dir_ / "timing.gtmap");
-    ms.push_back(std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count());
+    ms.push_back(
+        std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count());
   }
   std::sort(ms.begin(), ms.end());
   const double save_ms = ms[1];
@@ -169,9 +170,10 @@ TEST_F(CrashSafety, SigkillAtRandomPointsOfASaveNeverCostsThePreviousMap) {
       old_map->Save(path);  // the next round interrupts a save over the old map again
     }
   }
-  std::printf("save of %zu keyframes: %.1f ms; of %d kills, %d came before the temporary "
-              "existed, %d while it was being written, %d after the rename\n",
-              new_map->size(), save_ms, kRounds, before_temporary, while_writing, after_rename);
+  std::printf(
+      "save of %zu keyframes: %.1f ms; of %d kills, %d came before the temporary "
+      "existed, %d while it was being written, %d after the rename\n",
+      new_map->size(), save_ms, kRounds, before_temporary, while_writing, after_rename);
   // The test proves something only if kills landed inside writes: at least a quarter of them.
   EXPECT_GE(while_writing, kRounds / 4) << "too few kills landed while the file was written";
   // Killed writers leave temporaries; the next save of the same file removes them.

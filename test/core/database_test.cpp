@@ -5,8 +5,8 @@
 #include <atomic>
 #include <cmath>
 #include <cstdio>
-#include <map>
 #include <filesystem>
+#include <map>
 #include <random>
 #include <sstream>
 #include <thread>
@@ -34,7 +34,8 @@ BowVector Make(const std::vector<uint32_t>& rows, const std::vector<float>& angl
                const std::map<uint32_t, float>& weight) {
   BowVector v;
   v.angles = angles;
-  for (size_t i = 0; i < rows.size(); ++i) v.keypoints.push_back({rows[i], static_cast<uint16_t>(i), 0, 1});
+  for (size_t i = 0; i < rows.size(); ++i)
+    v.keypoints.push_back({rows[i], static_cast<uint16_t>(i), 0, 1});
   std::sort(v.keypoints.begin(), v.keypoints.end(),
             [](const KeypointEntry& a, const KeypointEntry& b) { return a.row < b.row; });
   std::map<uint32_t, int> count;
@@ -153,7 +154,8 @@ TEST_F(DatabaseFiles, RoundTripGivesIdenticalAnswersAndBadFilesAreRejected) {
   back.Load(f);
   EXPECT_EQ(back.size(), 19u);
   for (uint32_t i = 0; i < 20; ++i) {
-    const BowVector q = Make({i % 50, (i * 7) % 50}, {0.5f, 1.0f}, {{i % 50, 0.7f}, {(i * 7) % 50, 0.7f}});
+    const BowVector q =
+        Make({i % 50, (i * 7) % 50}, {0.5f, 1.0f}, {{i % 50, 0.7f}, {(i * 7) % 50, 0.7f}});
     const auto a = db.Query(q, 5), b = back.Query(q, 5);
     ASSERT_EQ(a.size(), b.size());
     for (size_t k = 0; k < a.size(); ++k) {
@@ -225,7 +227,8 @@ TEST(Database, ConcurrentQueriesSeeAPrefixOfTheInsertions) {
   std::vector<std::vector<std::string>> expected(queries.size());
   {
     BowDatabase seq(kRows, Ov(), 1);
-    for (size_t q = 0; q < queries.size(); ++q) expected[q].push_back(describe(seq.Query(queries[q], 5)));
+    for (size_t q = 0; q < queries.size(); ++q)
+      expected[q].push_back(describe(seq.Query(queries[q], 5)));
     for (const BowVector& v : images) {
       seq.Add(v);
       for (size_t q = 0; q < queries.size(); ++q) {
@@ -300,7 +303,8 @@ void ExpectSameResults(const std::vector<QueryResult>& a, const std::vector<Quer
   }
 }
 
-class DatabaseScale : public testing_util::TempDirTest, public ::testing::WithParamInterface<bool> {};
+class DatabaseScale : public testing_util::TempDirTest,
+                      public ::testing::WithParamInterface<bool> {};
 
 INSTANTIATE_TEST_SUITE_P(Layouts, DatabaseScale, ::testing::Values(true, false),
                          [](const auto& info) { return info.param ? "compact" : "precise"; });
@@ -353,10 +357,13 @@ TEST_P(DatabaseScale, BlocksThreadsAndStorageGiveIdenticalAnswers) {
     // No image outside the results scores above the last one (beyond the rounding).
     float best_outside = 0.0f;
     for (uint32_t i = 0; i < kImages + kLater; i += 7) {
-      if (i == 17 || std::any_of(ref.begin(), ref.end(), [i](const auto& r) { return r.image == i; })) continue;
+      if (i == 17 ||
+          std::any_of(ref.begin(), ref.end(), [i](const auto& r) { return r.image == i; }))
+        continue;
       best_outside = std::max(best_outside, NaiveScore(q, vecs[i], 6));
     }
-    EXPECT_LE(best_outside, ref.back().score * (1.0 + (GetParam() ? 2 * kCompactRelative : 1e-3)) + 1e-5);
+    EXPECT_LE(best_outside,
+              ref.back().score * (1.0 + (GetParam() ? 2 * kCompactRelative : 1e-3)) + 1e-5);
   }
   // Saving what was loaded and added gives the same index again.
   const fs::path g = dir_ / "again.gtdb";
@@ -366,8 +373,8 @@ TEST_P(DatabaseScale, BlocksThreadsAndStorageGiveIdenticalAnswers) {
   const BowVector q = vecs[kImages + 5];
   ExpectSameResults(online.Query(q, 10), again.Query(q, 10));
   const size_t entry = GetParam() ? 6 : 8;
-  EXPECT_NEAR(static_cast<double>(fs::file_size(g)), static_cast<double>(again.num_entries() * entry),
-              0.2 * again.num_entries() * entry);
+  EXPECT_NEAR(static_cast<double>(fs::file_size(g)),
+              static_cast<double>(again.num_entries() * entry), 0.2 * again.num_entries() * entry);
 }
 
 TEST(Database, CompactPostingsHoldAtMost256KeypointsPerImage) {
@@ -407,7 +414,8 @@ TEST_F(DatabaseFiles, LayoutsDoNotMixAndDamagedEntriesAreFound) {
     db.Load(dir_ / "bad.gtdb");
     FAIL();
   } catch (const std::runtime_error& e) {
-    EXPECT_NE(std::string(e.what()).find("checksum mismatch in entries"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("checksum mismatch in entries"), std::string::npos)
+        << e.what();
   }
   EXPECT_EQ(db.size(), 300u);
 }

@@ -9,8 +9,8 @@
 
 #include <gtest/gtest.h>
 
-#include "test_util.h"
 #include <opencv2/imgcodecs.hpp>
+#include "test_util.h"
 
 #include "ground_texture_bow/core/file_util.h"
 
@@ -70,15 +70,33 @@ TEST(DatasetFormat, YamlToleratesUnknownKeysAndFlowMaps) {
 }
 
 TEST(DatasetFormat, YamlRejectsMalformed) {
-  ExpectError([] { ParseDatasetYaml("format_version: 2\nimage_width: 1\nimage_height: 1\nmeters_per_pixel: 1\n", "d.yaml"); },
-              {"d.yaml:1", "format_version 2"});
-  ExpectError([] { ParseDatasetYaml("format_version: 1\nimage_height: 1\nmeters_per_pixel: 1\n", "d.yaml"); },
-              {"d.yaml", "image_width"});
-  ExpectError([] { ParseDatasetYaml("format_version: 1\nimage_width: 10\nimage_height: 10\nmeters_per_pixel: -1\n", "d.yaml"); },
-              {"d.yaml:4", "meters_per_pixel"});
-  ExpectError([] { ParseDatasetYaml("format_version: 1\nimage_width: ten\nimage_height: 10\nmeters_per_pixel: 1\n", "d.yaml"); },
-              {"d.yaml:2", "image_width", "ten"});
-  ExpectError([] { ParseDatasetYaml("format_version: 1\n  bad: [\n", "d.yaml"); }, {"d.yaml:", "invalid YAML"});
+  ExpectError(
+      [] {
+        ParseDatasetYaml(
+            "format_version: 2\nimage_width: 1\nimage_height: 1\nmeters_per_pixel: 1\n", "d.yaml");
+      },
+      {"d.yaml:1", "format_version 2"});
+  ExpectError(
+      [] {
+        ParseDatasetYaml("format_version: 1\nimage_height: 1\nmeters_per_pixel: 1\n", "d.yaml");
+      },
+      {"d.yaml", "image_width"});
+  ExpectError(
+      [] {
+        ParseDatasetYaml(
+            "format_version: 1\nimage_width: 10\nimage_height: 10\nmeters_per_pixel: -1\n",
+            "d.yaml");
+      },
+      {"d.yaml:4", "meters_per_pixel"});
+  ExpectError(
+      [] {
+        ParseDatasetYaml(
+            "format_version: 1\nimage_width: ten\nimage_height: 10\nmeters_per_pixel: 1\n",
+            "d.yaml");
+      },
+      {"d.yaml:2", "image_width", "ten"});
+  ExpectError([] { ParseDatasetYaml("format_version: 1\n  bad: [\n", "d.yaml"); },
+              {"d.yaml:", "invalid YAML"});
 }
 
 TEST(DatasetFormat, CsvRoundTrip) {
@@ -124,14 +142,16 @@ TEST(DatasetFormat, CsvRejectsMalformedNamingLine) {
 // Found by the fuzzers (test/fuzz): split names that are no file name, text that YAML cannot
 // carry, names the CSV writer did not quote, and coordinates too long for a fixed buffer.
 TEST(DatasetFormat, FuzzFindingsAreRejectedOrRoundTrip) {
-  const std::string head = "format_version: 1\nimage_width: 8\nimage_height: 8\nmeters_per_pixel: 1\n";
+  const std::string head =
+      "format_version: 1\nimage_width: 8\nimage_height: 8\nmeters_per_pixel: 1\n";
   ExpectError([&] { ParseDatasetYaml(head + "query_days: {../../etc: 0}\n", "d.yaml"); },
               {"d.yaml:5", "not a split name"});
   ExpectError([&] { ParseDatasetYaml(head + "query_days: {\"a\\0b\": 0}\n", "d.yaml"); },
               {"not a split name"});
   ExpectError([&] { ParseDatasetYaml(head + "query_days: {\"\xe0\x30\": 0}\n", "d.yaml"); },
               {"not a split name"});
-  ExpectError([&] { ParseDatasetYaml(head + "name: \"a\\x01\"\n", "d.yaml"); }, {"d.yaml:5", "'name'"});
+  ExpectError([&] { ParseDatasetYaml(head + "name: \"a\\x01\"\n", "d.yaml"); },
+              {"d.yaml:5", "'name'"});
   ExpectError([] { ParsePosesCsv(std::string("image,x,y,theta\na\0.png,1,2,0\n", 29), "p.csv"); },
               {"p.csv:2", "control character"});
   const std::vector<PoseRecord> poses = {{"#1, \"odd\".png", {1e300, -2.5e-8, 0.25}},
@@ -161,7 +181,8 @@ TEST_F(TempDir, LoadsDatasetAndConvertsColorImages) {
                     {{"database", {"a.jpg"}}, {"query_x", {"b.png"}}});
   cv::Mat color(48, 64, CV_8UC3, cv::Scalar(10, 200, 30));
   ASSERT_TRUE(cv::imwrite((dir_ / "images" / "a.jpg").string(), color));
-  ASSERT_TRUE(cv::imwrite((dir_ / "images" / "b.png").string(), cv::Mat(48, 64, CV_8U, cv::Scalar(7))));
+  ASSERT_TRUE(
+      cv::imwrite((dir_ / "images" / "b.png").string(), cv::Mat(48, 64, CV_8U, cv::Scalar(7))));
   const Dataset d = Dataset::Load(dir_);
   EXPECT_EQ(d.SplitNames(), (std::vector<std::string>{"database", "query_x"}));
   EXPECT_EQ(d.Split("database"), std::vector<std::string>{"a.jpg"});
@@ -192,7 +213,8 @@ TEST_F(TempDir, RejectsBadSplitsAndImages) {
 
 TEST_F(TempDir, LoadNamesMissingFiles) {
   ExpectError([&] { Dataset::Load(dir_); }, {"dataset.yaml"});
-  Write("dataset.yaml", "format_version: 1\nimage_width: 8\nimage_height: 8\nmeters_per_pixel: 0.1\n");
+  Write("dataset.yaml",
+        "format_version: 1\nimage_width: 8\nimage_height: 8\nmeters_per_pixel: 0.1\n");
   ExpectError([&] { Dataset::Load(dir_); }, {"poses.csv"});
   ExpectError([&] { Dataset::Load(dir_ / "nothing"); }, {"not a directory"});
 }

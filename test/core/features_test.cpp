@@ -14,7 +14,8 @@ namespace {
 cv::Mat Asphalt(double theta = 0.0) {
   synth::CameraOptions o;
   o.sensor_effects = false;
-  return synth::Camera(o).Capture(synth::Floor(synth::Surface::kAsphalt, 3), {0.5, 0.5, theta}, {}, {}, 1);
+  return synth::Camera(o).Capture(synth::Floor(synth::Surface::kAsphalt, 3), {0.5, 0.5, theta}, {},
+                                  {}, 1);
 }
 
 TEST(Features, OrbRecordsFollowThePaperDefaults) {
@@ -100,7 +101,8 @@ TEST(Features, ContrastNormalisationStretchesOnlyFaintFloors) {
   const cv::Mat rough = Asphalt();
   // A rough floor is left as it is (gain 1): exactly the paper's ORB.
   EXPECT_EQ(cv::norm(fx.Preprocess(rough), rough, cv::NORM_INF), 0.0);
-  const ImageFeatures plain = FeatureExtractor(FeatureOptions{}).Extract(rough), same = fx.Extract(rough);
+  const ImageFeatures plain = FeatureExtractor(FeatureOptions{}).Extract(rough),
+                      same = fx.Extract(rough);
   ASSERT_EQ(plain.size(), same.size());
   EXPECT_EQ(cv::norm(plain.descriptors, same.descriptors, cv::NORM_HAMMING), 0.0);
   // A faint one is stretched, and yields many more keypoints than plain ORB on it.
@@ -143,10 +145,12 @@ TEST(Features, ClaheAndAGridSpreadKeypointsOverFaintParts) {
   FeatureOptions c = g;
   c.grid_cols = c.grid_rows = 0;
   const ImageFeatures clahe = FeatureExtractor(c).Extract(img);
-  std::printf("keypoints outside the textured quarter: plain %.0f%% of %zu, clahe %.0f%% of %zu, clahe + grid "
-              "%.0f%% of %zu, with refill %.0f%% of %zu\n",
-              100 * share_outside(plain), plain.size(), 100 * share_outside(clahe), clahe.size(),
-              100 * share_outside(no_refill), no_refill.size(), 100 * share_outside(grid), grid.size());
+  std::printf(
+      "keypoints outside the textured quarter: plain %.0f%% of %zu, clahe %.0f%% of %zu, clahe + "
+      "grid "
+      "%.0f%% of %zu, with refill %.0f%% of %zu\n",
+      100 * share_outside(plain), plain.size(), 100 * share_outside(clahe), clahe.size(),
+      100 * share_outside(no_refill), no_refill.size(), 100 * share_outside(grid), grid.size());
   EXPECT_LT(share_outside(plain), 0.1);
   EXPECT_GT(share_outside(grid), 0.6);  // 9 of the 12 cells lie outside
   EXPECT_GT(share_outside(grid), share_outside(clahe));
@@ -170,11 +174,13 @@ TEST(Features, AnAdaptiveThresholdFindsKeypointsOnAFaintFloor) {
   EXPECT_EQ(adaptive.descriptors.rows, static_cast<int>(adaptive.size()));
   // A rough floor reaches num_features at the first threshold: the same keypoints as plain ORB.
   const cv::Mat rough = Asphalt();
-  const ImageFeatures plain = FeatureExtractor(FeatureOptions{}).Extract(rough), same = FeatureExtractor(a).Extract(rough);
+  const ImageFeatures plain = FeatureExtractor(FeatureOptions{}).Extract(rough),
+                      same = FeatureExtractor(a).Extract(rough);
   ASSERT_EQ(plain.size(), same.size());
   size_t common = 0;
   for (const auto& k : plain.keypoints) {
-    for (const auto& m : same.keypoints) common += (k.x == m.x && k.y == m.y && k.octave == m.octave) ? 1 : 0;
+    for (const auto& m : same.keypoints)
+      common += (k.x == m.x && k.y == m.y && k.octave == m.octave) ? 1 : 0;
   }
   EXPECT_GT(common, plain.size() * 9 / 10);
   // Adaptation is for ORB; a grid needs both sizes.

@@ -27,8 +27,10 @@ CameraOptions Ideal() {
 // Intensity-weighted centroid of bright pixels within `win` px of `guess`.
 bool BrightCentroid(const cv::Mat& img, Vec2 guess, int win, Vec2* out) {
   double sw = 0, su = 0, sv = 0, peak = 0;
-  for (int v = std::max(0, int(guess.y) - win); v <= std::min(img.rows - 1, int(guess.y) + win); ++v) {
-    for (int u = std::max(0, int(guess.x) - win); u <= std::min(img.cols - 1, int(guess.x) + win); ++u) {
+  for (int v = std::max(0, int(guess.y) - win); v <= std::min(img.rows - 1, int(guess.y) + win);
+       ++v) {
+    for (int u = std::max(0, int(guess.x) - win); u <= std::min(img.cols - 1, int(guess.x) + win);
+         ++u) {
       const double w = std::max(0.0, img.at<uint8_t>(v, u) - 160.0);
       peak = std::max(peak, double(img.at<uint8_t>(v, u)));
       sw += w;
@@ -86,8 +88,8 @@ TEST(Floor, HeightAndTiltJitterStayWithinTwoPercent) {
     max_err = std::max(max_err, std::hypot(got.x - corner_px.x, got.y - corner_px.y));
   }
   const double radius = std::hypot(319.5 - 40.0, 239.5 - 40.0);
-  EXPECT_GT(max_err, 0.2);                    // the jitter is there
-  EXPECT_LT(max_err, 0.02 * radius + 0.5);   // and bounded by +-2% scale
+  EXPECT_GT(max_err, 0.2);                  // the jitter is there
+  EXPECT_LT(max_err, 0.02 * radius + 0.5);  // and bounded by +-2% scale
 }
 
 TEST(Floor, DeterministicForSameSeed) {
@@ -140,7 +142,8 @@ TEST(Floor, TextureIsFixedToTheFloorForEverySurface) {
     WarpInto(b, pa, pb, g, &w, &mask);
     ASSERT_GT(cv::countNonZero(mask), 50000);
     const double ncc = Ncc(a, w, mask);
-    std::printf("%s: NCC of two views through the ground truth %.3f\n", SurfaceName(s).c_str(), ncc);
+    std::printf("%s: NCC of two views through the ground truth %.3f\n", SurfaceName(s).c_str(),
+                ncc);
     EXPECT_GT(ncc, 0.85) << SurfaceName(s);
   }
 }
@@ -190,7 +193,7 @@ TEST(Floor, WearAccumulatesAndDebrisComesAndGoes) {
   const double d180 = cv::norm(d0, render(180, 3), cv::NORM_L1) / d0.total();
   EXPECT_GT(same_day_other_visit, 0.05);  // transient debris differs between visits
   EXPECT_GT(d30, same_day_other_visit);
-  EXPECT_GT(d180, 1.5 * d30);              // progressive wear
+  EXPECT_GT(d180, 1.5 * d30);  // progressive wear
   // No wear at all when ageing is off: only the debris of the visit differs.
   FloorState off;
   off.day = 180;
@@ -271,9 +274,10 @@ TEST(Floor, OrbRepeatsAcrossDaysAndDifferentPlacesDoNotMatch) {
   const cv::Mat other_seed = cam.Capture(Floor(Surface::kAsphalt, 2), later_pose, day90, {}, 14);
   const int diff1 = ConsistentMatches(a, elsewhere);
   const int diff2 = ConsistentMatches(a, other_seed);
-  std::printf("ORB repeatability day 0 -> day 90: %.1f%% of %d keypoints; consistent matches: "
-              "same place %d, elsewhere %d, other floor %d\n",
-              100 * rep, mapped, same, diff1, diff2);
+  std::printf(
+      "ORB repeatability day 0 -> day 90: %.1f%% of %d keypoints; consistent matches: "
+      "same place %d, elsewhere %d, other floor %d\n",
+      100 * rep, mapped, same, diff1, diff2);
   EXPECT_GE(same, 40);
   EXPECT_LE(diff1, 10);
   EXPECT_LE(diff2, 10);
@@ -292,9 +296,9 @@ TEST(Floor, ReliefIsShadedByTheLightAndTurnsWithIt) {
     return out;
   };
   // No relief on a flat floor: the light changes nothing.
-  EXPECT_EQ(cv::norm(render(Surface::kFlat, 0.0, 0.0), render(Surface::kFlat, 0.8, 0.0),
-                     cv::NORM_INF),
-            0.0);
+  EXPECT_EQ(
+      cv::norm(render(Surface::kFlat, 0.0, 0.0), render(Surface::kFlat, 0.8, 0.0), cv::NORM_INF),
+      0.0);
   const cv::Mat plain = render(Surface::kAsphalt, 0.0, 0.0);
   const cv::Mat from_u = render(Surface::kAsphalt, 0.5, 0.0);
   const cv::Mat from_minus_u = render(Surface::kAsphalt, 0.5, M_PI);
@@ -351,13 +355,15 @@ TEST(Floor, RejectsBadInput) {
 TEST(Floor, LowContrastSurfacesHaveFineFaintStructure) {
   const Camera cam(Ideal());
   cv::Scalar m, asphalt_sd;
-  cv::meanStdDev(cam.Capture(Floor(Surface::kAsphalt, 4), {1.0, 2.0, 0.2}, {}, {}, 1), m, asphalt_sd);
+  cv::meanStdDev(cam.Capture(Floor(Surface::kAsphalt, 4), {1.0, 2.0, 0.2}, {}, {}, 1), m,
+                 asphalt_sd);
   for (Surface s : {Surface::kSmoothConcrete, Surface::kEpoxy}) {
     const Floor floor(s, 4);
     const cv::Mat a = cam.Capture(floor, {1.0, 2.0, 0.2}, {}, {}, 1);
     cv::Scalar mean, sd;
     cv::meanStdDev(a, mean, sd);
-    std::printf("%s: grey-level sd %.1f (asphalt %.1f)\n", SurfaceName(s).c_str(), sd[0], asphalt_sd[0]);
+    std::printf("%s: grey-level sd %.1f (asphalt %.1f)\n", SurfaceName(s).c_str(), sd[0],
+                asphalt_sd[0]);
     // Faint: a few grey levels (real smooth concrete photos: 7 to 13), far below asphalt.
     EXPECT_GT(sd[0], 1.5) << SurfaceName(s);
     EXPECT_LT(sd[0], 12.0) << SurfaceName(s);

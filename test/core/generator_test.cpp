@@ -117,7 +117,8 @@ TEST_F(GeneratorFiles, WritesALoadableDatasetByteIdenticallyForAnyThreadCount) {
   const Dataset d = Dataset::Load(dir_ / "a");
   EXPECT_EQ(d.info().geometry.width, 160);
   EXPECT_EQ(d.info().surface, "asphalt");
-  EXPECT_EQ(d.SplitNames(), (std::vector<std::string>{"database", "query_day000", "query_day060", "train"}));
+  EXPECT_EQ(d.SplitNames(),
+            (std::vector<std::string>{"database", "query_day000", "query_day060", "train"}));
   for (const auto& split : d.SplitNames()) {
     for (const auto& name : d.Split(split)) {
       ASSERT_EQ(d.LoadGray(name).cols, 160);
@@ -157,7 +158,8 @@ TEST_F(GeneratorFiles, BadInputNeverTouchesExistingOutput) {
   EXPECT_EQ(ReadFile(out / "precious.txt"), "keep");
 
   // An output path below a regular file cannot be created.
-  EXPECT_THROW(GenerateDataset(Small(), out / "precious.txt" / "x", false, false), std::runtime_error);
+  EXPECT_THROW(GenerateDataset(Small(), out / "precious.txt" / "x", false, false),
+               std::runtime_error);
   // --force replaces the old output only once the new one is complete.
   GenerateDataset(Small(), out, true, false);
   EXPECT_FALSE(fs::exists(out / "precious.txt"));
@@ -196,7 +198,8 @@ fs::path WritePhoto(const fs::path& dir, const std::string& name, int w, int h, 
   o.width = w;
   o.height = h;
   o.meters_per_pixel = 0.0005;
-  const cv::Mat img = Camera(o).Capture(Floor(Surface::kConcrete, seed), {3.0, 3.0, 0.0}, {}, {}, 1);
+  const cv::Mat img =
+      Camera(o).Capture(Floor(Surface::kConcrete, seed), {3.0, 3.0, 0.0}, {}, {}, 1);
   const fs::path p = dir / name;
   cv::imwrite(p.string(), img);
   return p;
@@ -206,7 +209,8 @@ class PhotoFloor : public testing_util::TempDirTest {
  protected:
   SynthOptions Options() {
     SynthOptions o = Small();
-    o.photos = {WritePhoto(dir_, "big.png", 600, 420, 1), WritePhoto(dir_, "small floor.jpg", 300, 260, 2)};
+    o.photos = {WritePhoto(dir_, "big.png", 600, 420, 1),
+                WritePhoto(dir_, "small floor.jpg", 300, 260, 2)};
     o.train_photos = {WritePhoto(dir_, "other.png", 400, 300, 3)};
     o.camera.width = 160;
     o.camera.height = 120;
@@ -231,9 +235,10 @@ TEST_F(PhotoFloor, NoImageCrossesItsPhotosEdgeAndQueriesAreSplitPerPhoto) {
       bool all = true;
       for (const auto& c : fp) {
         // With the 2% scale jitter of the camera, corners stay inside the photo.
-        const double cx = im.pose.x + 1.02 * (c.x - im.pose.x), cy = im.pose.y + 1.02 * (c.y - im.pose.y);
-        all = all && cx >= regions[r].x0 && cx <= regions[r].x0 + regions[r].width() && cy >= regions[r].y0 &&
-              cy <= regions[r].y0 + regions[r].height();
+        const double cx = im.pose.x + 1.02 * (c.x - im.pose.x),
+                     cy = im.pose.y + 1.02 * (c.y - im.pose.y);
+        all = all && cx >= regions[r].x0 && cx <= regions[r].x0 + regions[r].width() &&
+              cy >= regions[r].y0 && cy <= regions[r].y0 + regions[r].height();
       }
       if (all) inside = static_cast<int>(r);
     }
@@ -258,7 +263,8 @@ TEST_F(PhotoFloor, NoImageCrossesItsPhotosEdgeAndQueriesAreSplitPerPhoto) {
     EXPECT_EQ(again.images[i].pose.x, plan.images[i].pose.x);
     EXPECT_EQ(again.images[i].pose.theta, plan.images[i].pose.theta);
     if (plan.images[i].split.rfind("query_", 0) == 0) {
-      headings.insert(static_cast<int>(std::floor((plan.images[i].pose.theta + M_PI) / (M_PI / 2))));
+      headings.insert(
+          static_cast<int>(std::floor((plan.images[i].pose.theta + M_PI) / (M_PI / 2))));
     }
   }
   EXPECT_GE(headings.size(), 4u);

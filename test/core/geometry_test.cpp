@@ -50,12 +50,12 @@ TEST(Geometry, FootprintAreaAndCorners) {
 TEST(Geometry, OverlapHandCases) {
   const Pose2D q{0, 0, 0};
   EXPECT_NEAR(Overlap(q, q, kGeo), 1.0, 1e-12);
-  EXPECT_NEAR(Overlap(q, {0.08, 0, 0}, kGeo), 0.5, 1e-12);        // half the width
-  EXPECT_NEAR(Overlap(q, {0.08, 0.06, 0}, kGeo), 0.25, 1e-12);    // a quarter
-  EXPECT_NEAR(Overlap(q, {0.04, 0, M_PI}, kGeo), 0.75, 1e-12);    // rotation by pi is symmetric
-  EXPECT_NEAR(Overlap(q, {0, 0, M_PI / 2}, kGeo), 0.75, 1e-12);   // 12 x 12 of 16 x 12
-  EXPECT_NEAR(Overlap(q, {0.16, 0, 0}, kGeo), 0.0, 1e-12);        // touching edges
-  EXPECT_NEAR(Overlap(q, {0.5, 0.5, 0.3}, kGeo), 0.0, 1e-12);     // far apart
+  EXPECT_NEAR(Overlap(q, {0.08, 0, 0}, kGeo), 0.5, 1e-12);       // half the width
+  EXPECT_NEAR(Overlap(q, {0.08, 0.06, 0}, kGeo), 0.25, 1e-12);   // a quarter
+  EXPECT_NEAR(Overlap(q, {0.04, 0, M_PI}, kGeo), 0.75, 1e-12);   // rotation by pi is symmetric
+  EXPECT_NEAR(Overlap(q, {0, 0, M_PI / 2}, kGeo), 0.75, 1e-12);  // 12 x 12 of 16 x 12
+  EXPECT_NEAR(Overlap(q, {0.16, 0, 0}, kGeo), 0.0, 1e-12);       // touching edges
+  EXPECT_NEAR(Overlap(q, {0.5, 0.5, 0.3}, kGeo), 0.0, 1e-12);    // far apart
   // A square rotated by 45 degrees over itself: a regular octagon of area (2 sqrt2 - 2) a^2.
   const ImageGeometry square{100, 100, 0.01};
   EXPECT_NEAR(Overlap({0, 0, 0}, {0, 0, M_PI / 4}, square), 2 * std::sqrt(2.0) - 2, 1e-12);
@@ -69,8 +69,8 @@ TEST(Geometry, OverlapIsRelativeToTheQuery) {
 }
 
 TEST(Geometry, RelevanceThreshold) {
-  EXPECT_TRUE(IsRelevant({0, 0, 0}, {0.08, 0.06, 0}, kGeo));         // exactly 0.25
-  EXPECT_FALSE(IsRelevant({0, 0, 0}, {0.0801, 0.0601, 0}, kGeo));    // just below
+  EXPECT_TRUE(IsRelevant({0, 0, 0}, {0.08, 0.06, 0}, kGeo));       // exactly 0.25
+  EXPECT_FALSE(IsRelevant({0, 0, 0}, {0.0801, 0.0601, 0}, kGeo));  // just below
   EXPECT_TRUE(IsRelevant({0, 0, 0}, {0.0, 0.0, 3.0}, kGeo));
 }
 

@@ -6,8 +6,8 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
-#include <sstream>
 #include <regex>
+#include <sstream>
 #include <string>
 
 #include <gtest/gtest.h>
@@ -31,8 +31,9 @@ class GtbowCli : public gtbow::testing_util::TempDirTest {
   std::string Out(const std::string& name) { return (dir_ / name).string(); }
 };
 
-const char* kSmall = "--train 2 --queries 2 --days 0,30 --width 128 --height 96 "
-                     "--meters-per-pixel 0.0005 -q";
+const char* kSmall =
+    "--train 2 --queries 2 --days 0,30 --width 128 --height 96 "
+    "--meters-per-pixel 0.0005 -q";
 
 TEST_F(GtbowCli, SynthPrintsASummary) {
   const Result r = RunGtbow("synth --out " + Out("d") + " --area 0.2 0.15 " + kSmall);
@@ -100,7 +101,8 @@ TEST_F(GtbowCli, TrainEvaluateAndBenchmarkOnASyntheticFloor) {
   {
     // The measured columns (mean ± sd, median) beside the paper's 31.9 ms: numbers, positive.
     std::smatch m;
-    const std::regex row(R"(\| database query \| 31\.9 ± 3\.7 \| ([0-9.]+) ± ([0-9.]+) \| ([0-9.]+) \|)");
+    const std::regex row(
+        R"(\| database query \| 31\.9 ± 3\.7 \| ([0-9.]+) ± ([0-9.]+) \| ([0-9.]+) \|)");
     ASSERT_TRUE(std::regex_search(r.output, m, row)) << r.output;
     const double mean = std::stod(m[1]), median = std::stod(m[3]);
     EXPECT_GE(median, 0.0);
@@ -116,7 +118,8 @@ TEST_F(GtbowCli, TrainEvaluateAndBenchmarkOnASyntheticFloor) {
   EXPECT_NE(r.output.find("fewer words"), std::string::npos) << r.output;
   EXPECT_FALSE(fs::exists(dir_ / "x.gtvoc"));
   std::ofstream(dir_ / "bad.gtvoc") << "GTBWVOC junk";
-  r = RunGtbow("eval --dataset " + d + " --vocab " + Out("bad.gtvoc") + " --out " + Out("bad_eval") + " -q");
+  r = RunGtbow("eval --dataset " + d + " --vocab " + Out("bad.gtvoc") + " --out " +
+               Out("bad_eval") + " -q");
   EXPECT_NE(r.code, 0);
   EXPECT_NE(r.output.find("bad.gtvoc"), std::string::npos) << r.output;
   EXPECT_FALSE(fs::exists(dir_ / "bad_eval"));  // no half-written results
@@ -134,7 +137,8 @@ std::string ReadAll(const fs::path& p) {
 void WriteAll(const fs::path& p, const std::string& s) { std::ofstream(p) << s; }
 
 std::string Replace(std::string s, const std::string& from, const std::string& to) {
-  for (size_t i = 0; (i = s.find(from, i)) != std::string::npos; i += to.size()) s.replace(i, from.size(), to);
+  for (size_t i = 0; (i = s.find(from, i)) != std::string::npos; i += to.size())
+    s.replace(i, from.size(), to);
   return s;
 }
 
@@ -183,23 +187,27 @@ TEST_F(GtbowCli, EvalRunsOnAForeignDatasetAndTrainsItsOwnVocabulary) {
   EXPECT_NE(r.output.find("| query_day000 | 0 | 5 |"), std::string::npos) << r.output;
   EXPECT_EQ(r.output.find("query_day090"), std::string::npos) << r.output;
   EXPECT_NE(r.output.find("trained on the train split (10 images)"), std::string::npos) << r.output;
-  EXPECT_NE(ReadAll(dir_ / "eval" / "results.json").find("\"image_width\": 400"), std::string::npos);
+  EXPECT_NE(ReadAll(dir_ / "eval" / "results.json").find("\"image_width\": 400"),
+            std::string::npos);
 
   // Bad datasets: a missing image, a split naming an image without a pose, an empty split.
   std::string first;
   std::istringstream seq(ReadAll(d / "sequences" / "query_day000.txt"));
   while (first.empty() || first[0] == '#') std::getline(seq, first);
   fs::rename(d / "images" / first, dir_ / "moved.jpg");
-  r = RunGtbow("eval --dataset " + d.string() + " --words 600 --out " + Out("e2") + " --no-cache -q");
+  r = RunGtbow("eval --dataset " + d.string() + " --words 600 --out " + Out("e2") +
+               " --no-cache -q");
   EXPECT_NE(r.code, 0);
   EXPECT_NE(r.output.find(first), std::string::npos) << r.output;
   fs::rename(dir_ / "moved.jpg", d / "images" / first);
   WriteAll(d / "sequences" / "query_day000.txt", "nowhere.jpg\n");
-  r = RunGtbow("eval --dataset " + d.string() + " --words 600 --out " + Out("e2") + " --no-cache -q");
+  r = RunGtbow("eval --dataset " + d.string() + " --words 600 --out " + Out("e2") +
+               " --no-cache -q");
   EXPECT_NE(r.code, 0);
   EXPECT_NE(r.output.find("nowhere.jpg"), std::string::npos) << r.output;
   WriteAll(d / "sequences" / "query_day000.txt", "");
-  r = RunGtbow("eval --dataset " + d.string() + " --words 600 --out " + Out("e2") + " --no-cache -q");
+  r = RunGtbow("eval --dataset " + d.string() + " --words 600 --out " + Out("e2") +
+               " --no-cache -q");
   EXPECT_NE(r.code, 0);
   EXPECT_NE(r.output.find("query_day000"), std::string::npos) << r.output;
   EXPECT_FALSE(fs::exists(dir_ / "e2"));

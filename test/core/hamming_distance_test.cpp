@@ -5,9 +5,9 @@
 
 #include <cstdio>
 #include <cstring>
-#include <stdexcept>
 #include <limits>
 #include <random>
+#include <stdexcept>
 #include <vector>
 
 namespace gtbow {
@@ -44,8 +44,10 @@ TEST(HammingDistance, KernelsMatchTheReferenceForEverySizeAndThreshold) {
       for (uint32_t threshold : {0u, 100u, 129u, std::numeric_limits<uint32_t>::max()}) {
         std::vector<uint32_t> want_i, want_d;
         for (int i = 0; i < n; ++i) {
-          const uint32_t d = Reference(q.data(), rows.data() + static_cast<size_t>(i) * bytes, bytes);
-          EXPECT_EQ(HammingDistance(q.data(), rows.data() + static_cast<size_t>(i) * bytes, bytes), d);
+          const uint32_t d =
+              Reference(q.data(), rows.data() + static_cast<size_t>(i) * bytes, bytes);
+          EXPECT_EQ(HammingDistance(q.data(), rows.data() + static_cast<size_t>(i) * bytes, bytes),
+                    d);
           if (d < threshold) {
             want_i.push_back(i);
             want_d.push_back(d);
@@ -54,8 +56,8 @@ TEST(HammingDistance, KernelsMatchTheReferenceForEverySizeAndThreshold) {
         for (HammingKernel k : {HammingKernel::kPortable, HammingKernel::kAvx512}) {
           if (!HammingKernelSupported(k)) continue;
           std::vector<uint32_t> idx(n + 1), dist(n + 1);
-          const int m = HammingBelowUsing(k, pq.data(), packed.data(), n, bytes / 8, threshold, idx.data(),
-                                          dist.data());
+          const int m = HammingBelowUsing(k, pq.data(), packed.data(), n, bytes / 8, threshold,
+                                          idx.data(), dist.data());
           ASSERT_EQ(m, static_cast<int>(want_i.size())) << "bytes " << bytes << " n " << n;
           for (int j = 0; j < m; ++j) {
             EXPECT_EQ(idx[j], want_i[j]);

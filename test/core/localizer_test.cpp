@@ -3,22 +3,22 @@
 // file that survives a round trip and refuses damage.
 #include "ground_texture_bow/core/localizer.h"
 
-#include <chrono>
 #include <cctype>
-#include <optional>
-#include <map>
+#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <cstring>
 #include <fstream>
+#include <map>
+#include <optional>
 #include <sstream>
 
 #include <gtest/gtest.h>
 #include <opencv2/imgproc.hpp>
 
+#include "../fuzz/fuzz_util.h"
 #include "ground_texture_bow/core/file_util.h"
 #include "ground_texture_bow/eval/synth/generator.h"
-#include "../fuzz/fuzz_util.h"
 #include "test_scene.h"
 #include "test_util.h"
 
@@ -185,9 +185,9 @@ std::string Describe(const Candidate& c) {
   std::ostringstream o;
   o.precision(17);
   const PoseEstimate& r = c.relative;
-  o << "id " << c.id << " score " << c.score << " stamp " << c.stamp_ns << " has_pose " << c.has_pose
-    << " pose " << Describe(c.map_from_camera) << " verified " << c.verified << " relative "
-    << r.success << " '" << r.reason << "' " << r.database_from_query.theta << ' '
+  o << "id " << c.id << " score " << c.score << " stamp " << c.stamp_ns << " has_pose "
+    << c.has_pose << " pose " << Describe(c.map_from_camera) << " verified " << c.verified
+    << " relative " << r.success << " '" << r.reason << "' " << r.database_from_query.theta << ' '
     << r.database_from_query.t.x << ' ' << r.database_from_query.t.y << ' '
     << Describe(r.floor_from_query) << " inliers " << r.inliers << " rms " << r.residual_rms
     << " cov " << Describe(r.covariance) << " inlier pixels " << Describe(c.inliers);
@@ -199,8 +199,8 @@ std::string Describe(const Localization& f) {
   const PoseEstimate& e = f.estimate;
   o << "success " << f.success << " '" << f.reason << "' image " << f.image << " rank " << f.rank
     << " score " << f.score << " pose " << Describe(e.floor_from_query) << " cov "
-    << Describe(e.covariance) << " inliers " << e.inliers << " rms " << e.residual_rms
-    << " pixels " << Describe(f.inlier_pixels);
+    << Describe(e.covariance) << " inliers " << e.inliers << " rms " << e.residual_rms << " pixels "
+    << Describe(f.inlier_pixels);
   return o.str();
 }
 
@@ -224,7 +224,8 @@ TEST_F(LocalizerFiles, SavedMapsLoadAndAnswerIdentically) {
     const auto a = loc->Query(img, 5, true), b = fresh.Query(img, 5, true);
     ASSERT_EQ(a.size(), b.size());
     ASSERT_FALSE(a.empty());
-    for (size_t k = 0; k < a.size(); ++k) EXPECT_EQ(Describe(a[k]), Describe(b[k])) << q << ' ' << k;
+    for (size_t k = 0; k < a.size(); ++k)
+      EXPECT_EQ(Describe(a[k]), Describe(b[k])) << q << ' ' << k;
     const Localization fa = loc->Localize(img), fb = fresh.Localize(img);
     EXPECT_EQ(Describe(fa), Describe(fb)) << q;
   }
@@ -322,7 +323,8 @@ TEST_F(LocalizerFiles, DamagedOrForeignMapsAreRefusedAndTheCurrentMapKept) {
     }
   }
   ASSERT_TRUE(unique);
-  expect_refused(with_nan(&x6, sizeof x6), "a NaN keypoint", "keyframe 6 has a non-finite keypoint");
+  expect_refused(with_nan(&x6, sizeof x6), "a NaN keypoint",
+                 "keyframe 6 has a non-finite keypoint");
   // A map made with another vocabulary (the fuzzers' 64-word fixture) is refused by name.
   {
     LocalizerOptions o = Options();
@@ -335,7 +337,8 @@ TEST_F(LocalizerFiles, DamagedOrForeignMapsAreRefusedAndTheCurrentMapKept) {
       ADD_FAILURE() << "loaded a map of another vocabulary";
     } catch (const std::runtime_error& e) {
       EXPECT_NE(std::string(e.what()).find("another vocabulary"), std::string::npos) << e.what();
-      EXPECT_NE(std::string(e.what()).find("other_vocabulary.gtmap"), std::string::npos) << e.what();
+      EXPECT_NE(std::string(e.what()).find("other_vocabulary.gtmap"), std::string::npos)
+          << e.what();
     }
     EXPECT_EQ(target.size(), 1u);
   }
@@ -355,7 +358,8 @@ TEST_F(LocalizerFiles, DamagedOrForeignMapsAreRefusedAndTheCurrentMapKept) {
     ADD_FAILURE() << "saved into a directory that does not exist";
   } catch (const std::runtime_error& e) {
     EXPECT_NE(std::string(e.what()).find("no_such_dir/map.gtmap"), std::string::npos) << e.what();
-    EXPECT_NE(std::string(e.what()).find("No such file or directory"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("No such file or directory"), std::string::npos)
+        << e.what();
   }
   // A save over the map itself that fails half-way (a file-size limit below the map's size,
   // as a full disk would) leaves the file exactly as it was, time stamp included.
@@ -396,9 +400,9 @@ TEST_F(LocalizerFiles, EveryKeyOfThePresetGuardsTheMap) {
       {"features.grid_rows", {"features.grid_cols: 2"}},
       {"vocabulary.kind", {"bow.soft_assignment: 1"}},
       {"bow.scoring", {"bow.orientation_verification: false"}}};
-  const std::vector<std::string> names = {"orb", "sift", "none", "normalize", "clahe", "akm", "hkm",
-                                          "l2_bytes", "hamming", "l2", "flann", "ivf", "octave",
-                                          "percentile", "dot", "dbow_l1", "global", "per_bin"};
+  const std::vector<std::string> names = {
+      "orb", "sift",  "none", "normalize", "clahe",      "akm", "hkm",     "l2_bytes", "hamming",
+      "l2",  "flann", "ivf",  "octave",    "percentile", "dot", "dbow_l1", "global",   "per_bin"};
   // The text with `section.key` set to `value`.
   auto with = [](std::string text, const std::string& dotted, const std::string& value) {
     const std::string section = dotted.substr(0, dotted.find('.')) + ":\n";
@@ -439,7 +443,8 @@ TEST_F(LocalizerFiles, EveryKeyOfThePresetGuardsTheMap) {
         RetrievalConfig c = ParseRetrievalConfig(text, key);
         // The key itself must now have another value (not only its companions).
         const std::string formatted = FormatRetrievalConfig(c);
-        const size_t pos = formatted.find(line, formatted.find(key.substr(0, key.find('.')) + ":\n"));
+        const size_t pos =
+            formatted.find(line, formatted.find(key.substr(0, key.find('.')) + ":\n"));
         const std::string new_value =
             formatted.substr(pos + line.size(), formatted.find('\n', pos) - pos - line.size());
         if (new_value != old_value) {
@@ -490,9 +495,10 @@ TEST(Localizer, BadImagesAndPosesGetClearErrors) {
     cv::resize(s.db_images[0], big, big.size(), 0, 0, cv::INTER_LINEAR);
     const auto t0 = std::chrono::steady_clock::now();
     const ProcessedImage p = loc.Process(big);
-    std::printf("a 20-megapixel image: %.0f ms, %zu keypoints\n",
-                std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count(),
-                p.features.size());
+    std::printf(
+        "a 20-megapixel image: %.0f ms, %zu keypoints\n",
+        std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count(),
+        p.features.size());
     EXPECT_EQ(p.width, 5472);
     EXPECT_EQ(p.height, 3648);
     EXPECT_GT(p.features.size(), 0u);

@@ -27,14 +27,15 @@ std::vector<PointMatch> Plant(const Pose2D& query_pose, const Pose2D& db_pose, i
     if (d.x < 0 || d.x > 639 || d.y < 0 || d.y > 479) continue;  // outside the database image
     m.push_back({q, {d.x + n(rng), d.y + n(rng)}, 1.0});
   }
-  for (int i = 0; i < outliers; ++i) m.push_back({{u(rng), v(rng)}, {u(rng), v(rng)}, outlier_weight});
+  for (int i = 0; i < outliers; ++i)
+    m.push_back({{u(rng), v(rng)}, {u(rng), v(rng)}, outlier_weight});
   std::shuffle(m.begin(), m.end(), rng);
   return m;
 }
 
 TEST(Pose, RecoversAPlantedTransformThroughOutliers) {
   const Pose2D db{1.0, 2.0, 0.3};
-  const Pose2D query{1.012, 1.995, 0.3 + 0.4};  // 13 mm and 23 degrees away
+  const Pose2D query{1.012, 1.995, 0.3 + 0.4};           // 13 mm and 23 degrees away
   const auto m = Plant(query, db, 60, 90, 0.3, 1.0, 1);  // 60% outliers
   const PoseEstimate e = EstimatePose(m, db, kGeo, PoseOptions{});
   ASSERT_TRUE(e.success) << e.reason;
@@ -62,7 +63,8 @@ TEST(Pose, WeightedSamplingFindsHeavyInliersAmongManyLightOutliers) {
     o.weighted = false;
     plain_ok += EstimatePose(m, db, kGeo, o).success ? 1 : 0;
   }
-  std::printf("25 hypotheses, 85%% light outliers: weighted %d/20, plain %d/20\n", weighted_ok, plain_ok);
+  std::printf("25 hypotheses, 85%% light outliers: weighted %d/20, plain %d/20\n", weighted_ok,
+              plain_ok);
   EXPECT_EQ(weighted_ok, 20);
   EXPECT_LT(plain_ok, weighted_ok);
 }
@@ -73,7 +75,8 @@ TEST(Pose, CovarianceFollowsTheNoiseAndTheActualSpread) {
   std::vector<double> xs;
   double mean_var = 0.0;
   for (uint32_t seed = 1; seed <= 40; ++seed) {
-    const PoseEstimate e = EstimatePose(Plant(query, db, 80, 0, 1.0, 1.0, seed), db, kGeo, PoseOptions{});
+    const PoseEstimate e =
+        EstimatePose(Plant(query, db, 80, 0, 1.0, 1.0, seed), db, kGeo, PoseOptions{});
     ASSERT_TRUE(e.success);
     xs.push_back(e.floor_from_query.x);
     mean_var += e.covariance[0] / 40;
@@ -86,7 +89,8 @@ TEST(Pose, CovarianceFollowsTheNoiseAndTheActualSpread) {
   // The claimed variance matches the spread over trials to within a factor of 2.
   EXPECT_GT(mean_var, v / 2);
   EXPECT_LT(mean_var, v * 2);
-  const PoseEstimate quiet = EstimatePose(Plant(query, db, 80, 0, 0.1, 1.0, 1), db, kGeo, PoseOptions{});
+  const PoseEstimate quiet =
+      EstimatePose(Plant(query, db, 80, 0, 0.1, 1.0, 1), db, kGeo, PoseOptions{});
   EXPECT_LT(quiet.covariance[0], mean_var / 20);  // 10x less noise: ~100x less variance
 }
 

@@ -23,16 +23,18 @@ TEST_F(RealFloorSmall, HighAccuracyLocalizesSmoothConcreteWherePlainOrbDoesNot) 
       << "the real floor photographs are not at " << photos
       << " (configure with -DGTBOW_REAL_FLOORS=DIR)";
   const std::string data = (dir_ / "real").string(), out = (dir_ / "eval").string();
-  CommandResult r = RunCommand(std::string(GTBOW_BIN) + " synth --out " + data + " --photo " + photos +
-                               "/ufoai-textures_street001.png --photo " + photos +
-                               "/ufoai-textures_concrete_g_9.jpg --train-photo " + photos +
-                               "/ufoai-textures_street002.png --train-photo " + photos +
-                               "/redeclipse-data_plaster1.jpg --width 320 --height 240 --meters-per-pixel "
-                               "0.0005 --queries 20 --days 0 --train 120 -q");
+  CommandResult r =
+      RunCommand(std::string(GTBOW_BIN) + " synth --out " + data + " --photo " + photos +
+                 "/ufoai-textures_street001.png --photo " + photos +
+                 "/ufoai-textures_concrete_g_9.jpg --train-photo " + photos +
+                 "/ufoai-textures_street002.png --train-photo " + photos +
+                 "/redeclipse-data_plaster1.jpg --width 320 --height 240 --meters-per-pixel "
+                 "0.0005 --queries 20 --days 0 --train 120 -q");
   ASSERT_EQ(r.code, 0) << r.output;
   r = RunCommand(std::string(GTBOW_BIN) + " eval --dataset " + data + " --words 6000 --preset " +
                  GTBOW_CONFIG_DIR "/high_accuracy.yaml --preset " GTBOW_CONFIG_DIR
-                 "/paper_literal.yaml --out " + out + " --no-cache --no-plots --timing-queries 5 -q");
+                                  "/paper_literal.yaml --out " +
+                 out + " --no-cache --no-plots --timing-queries 5 -q");
   ASSERT_EQ(r.code, 0) << r.output;
   r = RunCommand("/usr/bin/python3 " GTBOW_SCRIPTS_DIR "/write_real_results.py --check " + out +
                  "/results.json 0.9");

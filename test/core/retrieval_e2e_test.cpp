@@ -54,7 +54,9 @@ TEST(RetrievalEndToEnd, RevisitedPlacesFindTheRightDatabaseImage) {
   for (const auto& f : db_feats) db.Add(enc.Encode(f));
 
   MapAccess map;
-  map.keypoints = [&](uint32_t i) -> const std::vector<Keypoint>& { return db_feats.at(i).keypoints; };
+  map.keypoints = [&](uint32_t i) -> const std::vector<Keypoint>& {
+    return db_feats.at(i).keypoints;
+  };
   map.pose = [&](uint32_t i) { return db_poses.at(i); };
   int right = 0, localized = 0;
   double worst_mm = 0.0, worst_deg = 0.0;
@@ -73,7 +75,8 @@ TEST(RetrievalEndToEnd, RevisitedPlacesFindTheRightDatabaseImage) {
     ASSERT_TRUE(loc.success) << loc.reason;
     const double mm = 1000.0 * std::hypot(loc.estimate.floor_from_query.x - pose.x,
                                           loc.estimate.floor_from_query.y - pose.y);
-    const double deg = std::abs(WrapAngle(loc.estimate.floor_from_query.theta - pose.theta)) * 180.0 / M_PI;
+    const double deg =
+        std::abs(WrapAngle(loc.estimate.floor_from_query.theta - pose.theta)) * 180.0 / M_PI;
     worst_mm = std::max(worst_mm, mm);
     worst_deg = std::max(worst_deg, deg);
     localized += mm <= 4.8 && deg <= 1.5 ? 1 : 0;

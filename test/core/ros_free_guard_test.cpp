@@ -43,8 +43,9 @@ TEST_F(RosFreeGuard, TheEngineMayNotUseTheEvaluationKit) {
 }
 
 TEST_F(RosFreeGuard, ScanRejectsRosIncludes) {
-  for (const char* inc : {"#include <ros/ros.h>", "  #  include \"nodelet/nodelet.h\"",
-                          "#include <sensor_msgs/Image.h>", "#include <ground_texture_bow/Status.h>"}) {
+  for (const char* inc :
+       {"#include <ros/ros.h>", "  #  include \"nodelet/nodelet.h\"",
+        "#include <sensor_msgs/Image.h>", "#include <ground_texture_bow/Status.h>"}) {
     std::ofstream(dir_ / "bad.cpp") << "// core file\n" << inc << "\nint x;\n";
     EXPECT_NE(Scan(dir_.string()), 0) << inc;
   }
@@ -54,7 +55,8 @@ TEST_F(RosFreeGuard, ScanRejectsRosIncludes) {
 
 TEST_F(RosFreeGuard, GuardHeadersFailTheCompile) {
   std::ofstream(dir_ / "ros.cpp") << "#include <ros/ros.h>\nint main() { return 0; }\n";
-  std::ofstream(dir_ / "ok.cpp") << "#include <ground_texture_bow/core/geometry.h>\nint main() { return 0; }\n";
+  std::ofstream(dir_ / "ok.cpp")
+      << "#include <ground_texture_bow/core/geometry.h>\nint main() { return 0; }\n";
   const std::string cxx = std::string(GTBOW_CXX) + " -std=c++17 -fsyntax-only -I" +
                           GTBOW_GUARD_DIR + " -I" + GTBOW_INCLUDE_DIR + " ";
   EXPECT_NE(Shell(cxx + (dir_ / "ros.cpp").string()), 0);

@@ -6,8 +6,8 @@
 #include <filesystem>
 #include <fstream>
 #include <map>
-#include <set>
 #include <random>
+#include <set>
 
 #include <gtest/gtest.h>
 
@@ -78,7 +78,8 @@ double Purity(const Vocabulary& v, const Planted& p, int clusters, bool* covered
   int good = 0;
   std::set<int> owners;
   for (const auto& [word, m] : votes) {
-    auto best = std::max_element(m.begin(), m.end(), [](auto& a, auto& b) { return a.second < b.second; });
+    auto best =
+        std::max_element(m.begin(), m.end(), [](auto& a, auto& b) { return a.second < b.second; });
     good += best->second;
     owners.insert(best->first);
   }
@@ -92,7 +93,8 @@ TEST(Vocabulary, AkmRecoversPlantedClustersInBothOrbMetrics) {
   o.checks = 256;
   for (Metric m : {Metric::kL2Bytes, Metric::kHamming}) {
     o.metric = m;
-    const Planted p = m == Metric::kHamming ? MakeBinary(16, 60, 12, 1) : MakeBytesL2(16, 60, 8.0, 1);
+    const Planted p =
+        m == Metric::kHamming ? MakeBinary(16, 60, 12, 1) : MakeBytesL2(16, 60, 8.0, 1);
     const auto v = TrainVocabulary(o, p.data, p.image, false);
     EXPECT_EQ(v->size(), 24u);
     bool distinct = false;
@@ -131,7 +133,8 @@ TEST(Vocabulary, IvfSearchAgreesWithExactNearestWord) {
   // The IVF lists travel with the vocabulary file: the loaded one answers identically.
   v->set_search(AnnIndex::kIvf, 10);
   v->Assign(query.data, 3, &approx);
-  const fs::path f = fs::temp_directory_path() / ("gtbow_ivf_" + std::to_string(::getpid()) + ".gtvoc");
+  const fs::path f =
+      fs::temp_directory_path() / ("gtbow_ivf_" + std::to_string(::getpid()) + ".gtvoc");
   v->Save(f);
   auto back = Vocabulary::Load(f);
   fs::remove(f);
@@ -161,7 +164,8 @@ TEST(Vocabulary, HammingIvfIsExactWithEveryListAndTravelsWithTheFile) {
   }
   v->set_search(AnnIndex::kIvf, 6);
   v->Assign(query.data, 3, &approx);
-  const fs::path f = fs::temp_directory_path() / ("gtbow_bivf_" + std::to_string(::getpid()) + ".gtvoc");
+  const fs::path f =
+      fs::temp_directory_path() / ("gtbow_bivf_" + std::to_string(::getpid()) + ".gtvoc");
   v->set_extractor("features:\n  type: orb\n");
   v->Save(f);
   auto back = Vocabulary::Load(f);
@@ -228,8 +232,8 @@ TEST(Vocabulary, HkmRecoversPlantedClustersAndBuildsATree) {
 TEST(Vocabulary, IdfCountsTrainingImages) {
   // Two clusters: one in every image, one in half of them.
   Planted p = MakeBinary(2, 20, 4, 3);
-  for (int s = 0; s < 20; ++s) p.image[s] = static_cast<uint32_t>(s % 10);        // images 0..9
-  for (int s = 0; s < 20; ++s) p.image[20 + s] = static_cast<uint32_t>(s % 5);    // images 0..4
+  for (int s = 0; s < 20; ++s) p.image[s] = static_cast<uint32_t>(s % 10);      // images 0..9
+  for (int s = 0; s < 20; ++s) p.image[20 + s] = static_cast<uint32_t>(s % 5);  // images 0..4
   VocabularyOptions o;
   o.num_words = 2;
   o.metric = Metric::kHamming;
@@ -237,8 +241,8 @@ TEST(Vocabulary, IdfCountsTrainingImages) {
   std::vector<WordHit> hits;
   v->Assign(p.data.rowRange(0, 1), 1, &hits);
   const uint32_t common = hits[0].word;
-  EXPECT_NEAR(v->idf()[common], 0.0, 1e-6);                 // log(10 / 10)
-  EXPECT_NEAR(v->idf()[1 - common], std::log(2.0), 1e-6);   // log(10 / 5)
+  EXPECT_NEAR(v->idf()[common], 0.0, 1e-6);                // log(10 / 10)
+  EXPECT_NEAR(v->idf()[1 - common], std::log(2.0), 1e-6);  // log(10 / 5)
 }
 
 class VocabularyFiles : public testing_util::TempDirTest {};

@@ -20,6 +20,7 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   ++fuzz::Accepted();
   c.Check();  // throws (a finding) if the parser let a bad value through
   const std::string formatted = FormatRetrievalConfig(c);
-  GTBOW_FUZZ_CHECK(FormatRetrievalConfig(ParseRetrievalConfig(formatted, "round trip")) == formatted);
+  GTBOW_FUZZ_CHECK(FormatRetrievalConfig(ParseRetrievalConfig(formatted, "round trip")) ==
+                   formatted);
   return 0;
 }

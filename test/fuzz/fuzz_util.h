@@ -36,20 +36,20 @@ inline size_t& Rejected() {
 }
 
 // A property of an accepted input that must hold; a violation is a finding (abort).
-#define GTBOW_FUZZ_CHECK(cond)                                                      \
-  do {                                                                              \
-    if (!(cond)) {                                                                  \
-      std::fprintf(stderr, "fuzz property violated: %s (%s:%d)\n", #cond, __FILE__, \
-                   __LINE__);                                                       \
-      std::abort();                                                                 \
-    }                                                                               \
+#define GTBOW_FUZZ_CHECK(cond)                                                                 \
+  do {                                                                                         \
+    if (!(cond)) {                                                                             \
+      std::fprintf(stderr, "fuzz property violated: %s (%s:%d)\n", #cond, __FILE__, __LINE__); \
+      std::abort();                                                                            \
+    }                                                                                          \
   } while (0)
 
 // A file of this process for parsers that read from a path (on tmpfs when there is one).
 inline const std::filesystem::path& ScratchFile(const char* name) {
   static const std::filesystem::path p = [name] {
     const std::filesystem::path shm = "/dev/shm";
-    const auto dir = std::filesystem::is_directory(shm) ? shm : std::filesystem::temp_directory_path();
+    const auto dir =
+        std::filesystem::is_directory(shm) ? shm : std::filesystem::temp_directory_path();
     return dir / ("gtbow_fuzz_" + std::string(name) + "_" + std::to_string(::getpid()));
   }();
   return p;

@@ -8,13 +8,13 @@
 #include <string>
 #include <vector>
 
+#include "../core/test_scene.h"
 #include "fuzz_fixture.h"
 #include "ground_texture_bow/core/database.h"
-#include "ground_texture_bow/eval/dataset.h"
 #include "ground_texture_bow/core/features.h"
 #include "ground_texture_bow/core/file_util.h"
+#include "ground_texture_bow/eval/dataset.h"
 #include "ground_texture_bow/eval/synth/generator.h"
-#include "../core/test_scene.h"
 
 namespace fs = std::filesystem;
 using namespace gtbow;

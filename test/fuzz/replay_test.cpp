@@ -19,7 +19,8 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size);
 TEST(FuzzCorpus, EveryInputRunsCleanAndTheCorpusReachesBothOutcomes) {
   std::vector<std::filesystem::path> files;
   for (const char* kind : {"corpus", "seeds", "regressions"}) {
-    const std::filesystem::path dir = std::filesystem::path(GTBOW_FUZZ_ROOT) / kind / GTBOW_FUZZ_TARGET;
+    const std::filesystem::path dir =
+        std::filesystem::path(GTBOW_FUZZ_ROOT) / kind / GTBOW_FUZZ_TARGET;
     if (!std::filesystem::is_directory(dir)) continue;
     for (const auto& e : std::filesystem::directory_iterator(dir)) {
       if (e.is_regular_file()) files.push_back(e.path());

@@ -110,7 +110,8 @@ TEST(BadInput, EachKindIsCountedReportedAndLosesNothing) {
     const cv::Mat small = cv_bridge::toCvCopy(base, "mono8")->image;
     cv::Mat large;
     cv::resize(small, large, cv::Size(5472, 3648), 0, 0, cv::INTER_LINEAR);
-    big = boost::make_shared<sensor_msgs::Image>(*cv_bridge::CvImage(big->header, "mono8", large).toImageMsg());
+    big = boost::make_shared<sensor_msgs::Image>(
+        *cv_bridge::CvImage(big->header, "mono8", large).toImageMsg());
   }
   std::vector<Frame> bad;
   for (const auto& img : {wrong, empty, no_tf, tiny, stale, nan_frame, big}) {
@@ -171,7 +172,8 @@ TEST(BadInput, EachKindIsCountedReportedAndLosesNothing) {
     EXPECT_EQ(gtbow::ReadFile(good_path), good_bytes);
     EXPECT_EQ(fs::last_write_time(good_path), mtime);
     std::vector<std::string> entries;
-    for (const auto& e : fs::directory_iterator(dir)) entries.push_back(e.path().filename().string());
+    for (const auto& e : fs::directory_iterator(dir))
+      entries.push_back(e.path().filename().string());
     EXPECT_EQ(entries, std::vector<std::string>{"map.gtmap"});
     EXPECT_EQ(::kill(manager, 0), 0) << "the manager died";
   }

@@ -4,8 +4,8 @@
 #include <cmath>
 
 #include <gtest/gtest.h>
-#include <opencv2/imgcodecs.hpp>
 #include <sensor_msgs/image_encodings.h>
+#include <opencv2/imgcodecs.hpp>
 
 namespace gtbow_ros {
 namespace {
@@ -19,7 +19,8 @@ sensor_msgs::Image MakeImage(const std::string& encoding, int w, int h, int byte
   m.data.resize(m.step * h);
   for (int v = 0; v < h; ++v) {
     for (int u = 0; u < w; ++u) {
-      for (int c = 0; c < bytes_per_pixel; ++c) m.data[v * m.step + u * bytes_per_pixel + c] = static_cast<uint8_t>(v * 10 + c);
+      for (int c = 0; c < bytes_per_pixel; ++c)
+        m.data[v * m.step + u * bytes_per_pixel + c] = static_cast<uint8_t>(v * 10 + c);
     }
   }
   return m;
@@ -139,16 +140,17 @@ TEST(Conversions, PoseWithCovarianceHasThePlanarCovarianceInPlace) {
   const auto m = ToPoseWithCovariance({1, 2, M_PI / 2}, c, ros::Time(5, 0), "map", 1e-9);
   EXPECT_EQ(m.header.frame_id, "map");
   EXPECT_EQ(m.header.stamp, ros::Time(5, 0));
-  EXPECT_NEAR(YawOf(m.pose.pose.orientation.x, m.pose.pose.orientation.y,
-                    m.pose.pose.orientation.z, m.pose.pose.orientation.w), M_PI / 2, 1e-12);
-  EXPECT_EQ(m.pose.covariance[0], 1e-6);       // x x
-  EXPECT_EQ(m.pose.covariance[1], 2e-7);       // x y
-  EXPECT_EQ(m.pose.covariance[5], 3e-8);       // x yaw
-  EXPECT_EQ(m.pose.covariance[35], 6e-5);      // yaw yaw
+  EXPECT_NEAR(YawOf(m.pose.pose.orientation.x, m.pose.pose.orientation.y, m.pose.pose.orientation.z,
+                    m.pose.pose.orientation.w),
+              M_PI / 2, 1e-12);
+  EXPECT_EQ(m.pose.covariance[0], 1e-6);          // x x
+  EXPECT_EQ(m.pose.covariance[1], 2e-7);          // x y
+  EXPECT_EQ(m.pose.covariance[5], 3e-8);          // x yaw
+  EXPECT_EQ(m.pose.covariance[35], 6e-5);         // yaw yaw
   EXPECT_EQ(m.pose.covariance[6 * 5 + 1], 5e-8);  // yaw y
-  EXPECT_EQ(m.pose.covariance[14], 1e-9);      // z z
-  EXPECT_EQ(m.pose.covariance[21], 1e-9);      // roll roll
-  EXPECT_EQ(m.pose.covariance[28], 1e-9);      // pitch pitch
+  EXPECT_EQ(m.pose.covariance[14], 1e-9);         // z z
+  EXPECT_EQ(m.pose.covariance[21], 1e-9);         // roll roll
+  EXPECT_EQ(m.pose.covariance[28], 1e-9);         // pitch pitch
 }
 
 TEST(Conversions, StampsCandidatesAndPoses) {

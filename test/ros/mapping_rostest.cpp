@@ -1,4 +1,5 @@
-// mapping.test (Mapping.*): the nodelet maps a replayed run; revisits, loop closures, overlays, markers.
+// mapping.test (Mapping.*): the nodelet maps a replayed run; revisits, loop closures, overlays,
+// markers.
 #include "rostest_util.h"
 
 namespace {
@@ -17,8 +18,8 @@ TEST(Mapping, ReplayBuildsKeyframesAndRevisitsGetTheRightOnes) {
   debug_topic.Stop();
   ros::WallDuration(1.0).sleep();  // the node sees the subscriber go
   const uint64_t drawn_while_subscribed = Info("/localizer").debug_images;
-  Replay(std::vector<Frame>(mapping.begin() + 5, mapping.end()), "/camera/image_raw",
-         "/localizer", 4.0);
+  Replay(std::vector<Frame>(mapping.begin() + 5, mapping.end()), "/camera/image_raw", "/localizer",
+         4.0);
   const auto debug = debug_topic.Get();
   EXPECT_GE(drawn_while_subscribed, 4u);  // the first may come before the subscription is up
   EXPECT_LE(drawn_while_subscribed, 5u);
@@ -55,10 +56,14 @@ TEST(Mapping, ReplayBuildsKeyframesAndRevisitsGetTheRightOnes) {
       accurate += PositionErrorMm(est, f.truth) <= 4.8 && HeadingErrorDeg(est, f.truth) <= 1.5;
     }
   }
-  std::printf("mapping: %u keyframes from %zu images; revisits: %d of %zu right, %d verified within "
-              "4.8 mm / 1.5 deg\n", info.database_size, mapping.size(), right, revisits.size(), accurate);
-  EXPECT_GE(right, static_cast<int>(revisits.size() * 9 / 10)) << right << " of " << revisits.size();
-  EXPECT_GE(accurate, static_cast<int>(revisits.size() * 9 / 10)) << accurate << " of " << revisits.size();
+  std::printf(
+      "mapping: %u keyframes from %zu images; revisits: %d of %zu right, %d verified within "
+      "4.8 mm / 1.5 deg\n",
+      info.database_size, mapping.size(), right, revisits.size(), accurate);
+  EXPECT_GE(right, static_cast<int>(revisits.size() * 9 / 10))
+      << right << " of " << revisits.size();
+  EXPECT_GE(accurate, static_cast<int>(revisits.size() * 9 / 10))
+      << accurate << " of " << revisits.size();
 
   // By keyframe id: never itself, and the best overlaps it.
   for (uint32_t id = 0; id < info.database_size; id += 5) {
@@ -87,13 +92,15 @@ TEST(Mapping, ReplayBuildsKeyframesAndRevisitsGetTheRightOnes) {
     const gtbow::Pose2D& q = truth.at(lc.query_stamp);
     consistent += PositionErrorMm(est, q) <= 4.8 && HeadingErrorDeg(est, q) <= 1.5;
   }
-  std::printf("loop closures: %zu, %d consistent with the ground truth\n", closures.size(), consistent);
+  std::printf("loop closures: %zu, %d consistent with the ground truth\n", closures.size(),
+              consistent);
   // A SLAM backend takes a verified loop closure as a fact: every one must agree with the truth.
   EXPECT_EQ(consistent, static_cast<int>(closures.size()));
 
   // RViz markers: one footprint (4 segments) per posed keyframe, one edge per loop closure.
   visualization_msgs::MarkerArrayConstPtr markers =
-      ros::topic::waitForMessage<visualization_msgs::MarkerArray>("/localizer/markers", ros::Duration(5));
+      ros::topic::waitForMessage<visualization_msgs::MarkerArray>("/localizer/markers",
+                                                                  ros::Duration(5));
   ASSERT_TRUE(markers != nullptr);
   ASSERT_EQ(markers->markers.size(), 2u);
   EXPECT_EQ(markers->markers[0].header.frame_id, "map");

@@ -6,7 +6,8 @@ int main(int argc, char** argv) {
   ros::init(argc, argv, "localizer_rostest");
   ros::NodeHandle pnh("~");
   if (!pnh.getParam("data", rostest_util::g_data)) {
-    std::fprintf(stderr, "localizer_rostest: the ~data parameter (test data directory) is not set\n");
+    std::fprintf(stderr,
+                 "localizer_rostest: the ~data parameter (test data directory) is not set\n");
     return 2;
   }
   ros::AsyncSpinner spinner(2);

@@ -16,17 +16,17 @@
 
 #include <algorithm>
 #include <atomic>
-#include <random>
-#include <thread>
-#include <iterator>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <iterator>
 #include <map>
 #include <mutex>
+#include <random>
 #include <sstream>
 #include <string>
+#include <thread>
 #include <tuple>
 #include <vector>
 
@@ -37,7 +37,6 @@
 #include <nodelet/NodeletLoad.h>
 #include <nodelet/NodeletUnload.h>
 #include <ros/network.h>
-#include <xmlrpcpp/XmlRpcClient.h>
 #include <ros/ros.h>
 #include <ros/topic.h>
 #include <rosbag/bag.h>
@@ -48,26 +47,26 @@
 #include <tf2_ros/static_transform_broadcaster.h>
 #include <tf2_ros/transform_listener.h>
 #include <visualization_msgs/MarkerArray.h>
+#include <xmlrpcpp/XmlRpcClient.h>
 
-#include "ground_texture_bow/GetInfo.h"
-#include "ground_texture_bow/LoadMap.h"
-#include "ground_texture_bow/LoopClosure.h"
-#include "ground_texture_bow/QueryCandidates.h"
-#include "ground_texture_bow/AddKeyframe.h"
-#include "ground_texture_bow/CandidateList.h"
-#include "ground_texture_bow/Localize.h"
-#include "ground_texture_bow/Reset.h"
-#include "ground_texture_bow/SetMode.h"
 #include <cv_bridge/cv_bridge.h>
+#include <sensor_msgs/CompressedImage.h>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
-#include <sensor_msgs/CompressedImage.h>
+#include "ground_texture_bow/AddKeyframe.h"
+#include "ground_texture_bow/CandidateList.h"
+#include "ground_texture_bow/GetInfo.h"
+#include "ground_texture_bow/LoadMap.h"
+#include "ground_texture_bow/Localize.h"
+#include "ground_texture_bow/LoopClosure.h"
+#include "ground_texture_bow/QueryCandidates.h"
+#include "ground_texture_bow/Reset.h"
 #include "ground_texture_bow/SaveMap.h"
+#include "ground_texture_bow/SetMode.h"
 #include "ground_texture_bow/Status.h"
-#include "ground_texture_bow/core/geometry.h"
 #include "ground_texture_bow/core/file_util.h"
+#include "ground_texture_bow/core/geometry.h"
 #include "ground_texture_bow/ros/conversions.h"
-
 
 namespace rostest_util {
 
@@ -107,10 +106,11 @@ template <typename M>
 class Collector {
  public:
   explicit Collector(const std::string& topic, uint32_t queue = 100) {
-    sub_ = ros::NodeHandle().subscribe<M>(topic, queue, [this](const boost::shared_ptr<const M>& msg) {
-      std::lock_guard<std::mutex> lock(mutex_);
-      messages_.push_back(*msg);
-    });
+    sub_ =
+        ros::NodeHandle().subscribe<M>(topic, queue, [this](const boost::shared_ptr<const M>& msg) {
+          std::lock_guard<std::mutex> lock(mutex_);
+          messages_.push_back(*msg);
+        });
   }
   std::vector<M> Get() const {
     std::lock_guard<std::mutex> lock(mutex_);
@@ -138,13 +138,14 @@ inline ground_texture_bow::GetInfo::Response Info(const std::string& node) {
 // Publishes each frame's TF and image at `rate` Hz at most: each image only once the node has
 // dealt with the previous one (so that a slow machine or a sanitizer build drops nothing), then
 // waits until the node has dealt with every image it received.
-inline void Replay(const std::vector<Frame>& frames, const std::string& topic, const std::string& node,
-            double rate) {
+inline void Replay(const std::vector<Frame>& frames, const std::string& topic,
+                   const std::string& node, double rate) {
   ros::NodeHandle nh;
   ros::Publisher img_pub = nh.advertise<sensor_msgs::Image>(topic, 10);
   ros::Publisher tf_pub = nh.advertise<tf2_msgs::TFMessage>("/tf", 100);
   const ros::WallTime deadline = ros::WallTime::now() + ros::WallDuration(20);
-  while (img_pub.getNumSubscribers() == 0 && ros::WallTime::now() < deadline) ros::WallDuration(0.05).sleep();
+  while (img_pub.getNumSubscribers() == 0 && ros::WallTime::now() < deadline)
+    ros::WallDuration(0.05).sleep();
   ASSERT_GT(img_pub.getNumSubscribers(), 0u) << "nobody subscribes to " << topic;
   ros::WallDuration(0.5).sleep();
   const uint64_t before = Info(node).images_received;
@@ -158,7 +159,8 @@ inline void Replay(const std::vector<Frame>& frames, const std::string& topic, c
     while (ros::WallTime::now() < limit) {
       const auto info = Info(node);
       if (info.images_received >= before + i + 1 &&
-          info.images_processed + info.images_dropped + info.images_rejected >= info.images_received) {
+          info.images_processed + info.images_dropped + info.images_rejected >=
+              info.images_received) {
         break;
       }
       ros::WallDuration(0.02).sleep();
@@ -168,7 +170,8 @@ inline void Replay(const std::vector<Frame>& frames, const std::string& topic, c
   while (ros::WallTime::now() < end) {
     const auto info = Info(node);
     if (info.images_received >= before + frames.size() &&
-        info.images_processed + info.images_dropped + info.images_rejected >= info.images_received) {
+        info.images_processed + info.images_dropped + info.images_rejected >=
+            info.images_received) {
       return;
     }
     ros::WallDuration(0.1).sleep();
@@ -203,7 +206,7 @@ struct NodeStatus {
   std::map<std::string, std::string> values;
 };
 inline NodeStatus LatestStatus(const std::vector<diagnostic_msgs::DiagnosticArray>& arrays,
-                        const std::string& node) {
+                               const std::string& node) {
   NodeStatus out;
   for (const auto& array : arrays) {
     for (const auto& st : array.status) {

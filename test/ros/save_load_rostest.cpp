@@ -84,7 +84,8 @@ TEST(SaveLoad, AFreshNodeLoadsTheMapAnswersAlikeAndLocalizesALaterDay) {
   for (const Frame& f : later) {
     auto it = fixes.find(f.image->header.stamp);
     if (it == fixes.end()) continue;
-    good += PositionErrorMm(it->second, f.truth) <= 4.8 && HeadingErrorDeg(it->second, f.truth) <= 1.5;
+    good +=
+        PositionErrorMm(it->second, f.truth) <= 4.8 && HeadingErrorDeg(it->second, f.truth) <= 1.5;
   }
   std::printf("localization: %zu fixes for %zu images, %d within 4.8 mm / 1.5 deg\n", fixes.size(),
               later.size(), good);

@@ -18,7 +18,8 @@ sensor_msgs::CompressedImage Compress(const sensor_msgs::Image& img) {
 TEST(Services, ExternalModeCompressedImagesAndMapServices) {
   ros::NodeHandle nh;
   Collector<ground_texture_bow::CandidateList> list_topic("/localizer/candidates");
-  ros::Publisher pub = nh.advertise<sensor_msgs::CompressedImage>("/camera/image_raw/compressed", 10);
+  ros::Publisher pub =
+      nh.advertise<sensor_msgs::CompressedImage>("/camera/image_raw/compressed", 10);
   const auto mapping = ReadBag(g_data + "/mapping.bag");
   EXPECT_EQ(Info("/localizer").mode, "external");
   // ~preset is empty here: the documented default applies.
@@ -39,11 +40,13 @@ TEST(Services, ExternalModeCompressedImagesAndMapServices) {
   nan_pose.request.image = *mapping[0].image;
   nan_pose.request.has_pose = true;
   nan_pose.request.pose.x = NAN;
-  EXPECT_EQ(Call("/localizer/add_keyframe", nan_pose).response.status.code, Status::INVALID_ARGUMENT);
+  EXPECT_EQ(Call("/localizer/add_keyframe", nan_pose).response.status.code,
+            Status::INVALID_ARGUMENT);
 
   // Compressed images in: ranked candidates out, nothing inserted by the node itself.
   const ros::WallTime deadline = ros::WallTime::now() + ros::WallDuration(20);
-  while (pub.getNumSubscribers() == 0 && ros::WallTime::now() < deadline) ros::WallDuration(0.05).sleep();
+  while (pub.getNumSubscribers() == 0 && ros::WallTime::now() < deadline)
+    ros::WallDuration(0.05).sleep();
   ASSERT_GT(pub.getNumSubscribers(), 0u);
   ros::WallDuration(0.5).sleep();  // the connection is up on both sides
   for (size_t i : {3u, 7u}) {
@@ -99,7 +102,8 @@ TEST(Services, ExternalModeCompressedImagesAndMapServices) {
   EXPECT_GT(info.images_dropped, dropped_before) << "no waiting image was replaced";
   EXPECT_EQ(info.images_received - received_before,
             (info.images_processed - processed_before) + (info.images_dropped - dropped_before));
-  EXPECT_EQ(info.images_processed + info.images_dropped + info.images_rejected, info.images_received);
+  EXPECT_EQ(info.images_processed + info.images_dropped + info.images_rejected,
+            info.images_received);
   EXPECT_EQ(info.database_size, 12u);  // external mode never inserts on its own
 
   // ~localize against the posed keyframes, with day-30 images that are not in the map (a later
@@ -123,12 +127,14 @@ TEST(Services, ExternalModeCompressedImagesAndMapServices) {
     ASSERT_EQ(loc.response.status.code, Status::OK) << loc.response.status.message;
     if (!loc.response.localized) continue;
     const auto& p = loc.response.pose.pose.pose;
-    const gtbow::Pose2D fix{p.position.x, p.position.y,
-                            gtbow_ros::YawOf(p.orientation.x, p.orientation.y, p.orientation.z, p.orientation.w)};
+    const gtbow::Pose2D fix{
+        p.position.x, p.position.y,
+        gtbow_ros::YawOf(p.orientation.x, p.orientation.y, p.orientation.z, p.orientation.w)};
     within += PositionErrorMm(fix, f.truth) <= 4.8 && HeadingErrorDeg(fix, f.truth) <= 1.5;
   }
-  std::printf("~localize, day-30 images over the map and off its keyframes: %d, within tolerance %d\n",
-              tried, within);
+  std::printf(
+      "~localize, day-30 images over the map and off its keyframes: %d, within tolerance %d\n",
+      tried, within);
   ASSERT_GE(tried, 3);
   EXPECT_EQ(within, tried);
 
@@ -162,7 +168,8 @@ TEST(Services, ExternalModeCompressedImagesAndMapServices) {
     ros::WallDuration(0.3).sleep();
   }
   const ros::WallTime mapped = ros::WallTime::now() + ros::WallDuration(10);
-  while (Info("/localizer").images_processed < before_mapping + 10 && ros::WallTime::now() < mapped) {
+  while (Info("/localizer").images_processed < before_mapping + 10 &&
+         ros::WallTime::now() < mapped) {
     ros::WallDuration(0.1).sleep();
   }
   info = Info("/localizer");

@@ -6,10 +6,10 @@ namespace {
 using namespace rostest_util;
 
 // ---------------------------------------------------------------------------------------------
-// Soak (test/ros/soak.test, `make soak`; 60 s under TSan in CI): rosbag play --loop --rate 4 feeds the
-// nodelet in mapping mode for ~seconds while this process calls every read service and
-// save_map concurrently. Passes when the manager never dies, no call fails or hangs, images
-// keep being processed, and the manager's memory grows no more than the map does.
+// Soak (test/ros/soak.test, `make soak`; 60 s under TSan in CI): rosbag play --loop --rate 4 feeds
+// the nodelet in mapping mode for ~seconds while this process calls every read service and save_map
+// concurrently. Passes when the manager never dies, no call fails or hangs, images keep being
+// processed, and the manager's memory grows no more than the map does.
 
 // The resident set of the process whose command line holds `needle` (0 when none).
 pid_t FindProcess(const std::string& needle) {
@@ -19,7 +19,8 @@ pid_t FindProcess(const std::string& needle) {
     std::ifstream f(e.path() / "cmdline", std::ios::binary);
     std::string cmd((std::istreambuf_iterator<char>(f)), std::istreambuf_iterator<char>());
     std::replace(cmd.begin(), cmd.end(), '\0', ' ');
-    if (cmd.find(needle) != std::string::npos && cmd.find("localizer_rostest") == std::string::npos) {
+    if (cmd.find(needle) != std::string::npos &&
+        cmd.find("localizer_rostest") == std::string::npos) {
       return static_cast<pid_t>(std::stol(name));
     }
   }
@@ -40,7 +41,7 @@ struct CallStats {
   std::atomic<uint64_t> calls{0}, failures{0};
   std::atomic<double> max_ms{0.0};
   std::atomic<double> last_done{0.0};  // wall seconds
-  std::vector<double> ms;               // every latency (one writer)
+  std::vector<double> ms;              // every latency (one writer)
   std::string last_failure;
 };
 
@@ -129,9 +130,11 @@ TEST(Soak, ReplayAtFourTimesRealTimeWithConcurrentServiceCalls) {
       const double s0 = wall();
       const bool ok = client.Call(q);
       // NOT_FOUND only for an empty map.
-      record(by_id, s0, ok && (q.response.status.code == Status::OK ||
-                               (gi.response.database_size == 0 && q.response.status.code == Status::NOT_FOUND)),
-             q.response.status.message);
+      record(
+          by_id, s0,
+          ok && (q.response.status.code == Status::OK ||
+                 (gi.response.database_size == 0 && q.response.status.code == Status::NOT_FOUND)),
+          q.response.status.message);
     }
   });
   callers.emplace_back([&] {
@@ -142,8 +145,9 @@ TEST(Soak, ReplayAtFourTimesRealTimeWithConcurrentServiceCalls) {
       const double s0 = wall();
       const bool ok = client.Call(l);
       // NOT_FOUND: answered, but no candidate verified (a fix needs posed keyframes nearby).
-      record(localize, s0, ok && (l.response.status.code == Status::OK ||
-                                  l.response.status.code == Status::NOT_FOUND),
+      record(localize, s0,
+             ok && (l.response.status.code == Status::OK ||
+                    l.response.status.code == Status::NOT_FOUND),
              l.response.status.message);
     }
   });
@@ -153,7 +157,8 @@ TEST(Soak, ReplayAtFourTimesRealTimeWithConcurrentServiceCalls) {
       ground_texture_bow::GetInfo gi;
       const double s0 = wall();
       const bool ok = client.Call(gi);
-      record(info_stats, s0, ok && gi.response.status.code == Status::OK, gi.response.status.message);
+      record(info_stats, s0, ok && gi.response.status.code == Status::OK,
+             gi.response.status.message);
       ros::WallDuration(0.1).sleep();
     }
   });
@@ -225,20 +230,23 @@ TEST(Soak, ReplayAtFourTimesRealTimeWithConcurrentServiceCalls) {
   ASSERT_EQ(Call("/localizer/save_map", final_save).response.status.code, Status::OK);
   const double map_mb = static_cast<double>(fs::file_size(out + "/soak.gtmap")) / (1024.0 * 1024.0);
   const Sample& last = samples.back();
-  const Sample& warm = *std::find_if(samples.begin(), samples.end(),
-                                     [&](const Sample& s) { return s.t >= std::min(60.0, seconds / 4); });
-  const double map_growth_mb = map_mb * (last.keyframes - warm.keyframes) / std::max<uint32_t>(last.keyframes, 1);
+  const Sample& warm = *std::find_if(samples.begin(), samples.end(), [&](const Sample& s) {
+    return s.t >= std::min(60.0, seconds / 4);
+  });
+  const double map_growth_mb =
+      map_mb * (last.keyframes - warm.keyframes) / std::max<uint32_t>(last.keyframes, 1);
   const double rss_growth_mb = last.rss_mb - warm.rss_mb;
   double peak = 0;
   for (const Sample& s : samples) peak = std::max(peak, s.rss_mb);
   const double allowed_mb = 2.0 * map_growth_mb + 64.0;
   if (check_memory) {
-    EXPECT_LE(rss_growth_mb, allowed_mb) << "memory grew " << rss_growth_mb
-                                         << " MB while the map grew " << map_growth_mb << " MB";
+    EXPECT_LE(rss_growth_mb, allowed_mb)
+        << "memory grew " << rss_growth_mb << " MB while the map grew " << map_growth_mb << " MB";
   }
   // Images kept flowing: every minute saw processing.
   for (size_t i = 60; i < samples.size(); i += 60) {
-    EXPECT_GT(samples[i].processed, samples[i - 60].processed) << "no image processed in minute " << i / 60;
+    EXPECT_GT(samples[i].processed, samples[i - 60].processed)
+        << "no image processed in minute " << i / 60;
   }
   for (CallStats* st : {&query, &by_id, &localize, &info_stats}) {
     EXPECT_GT(st->calls, 10u) << st->name;
@@ -254,14 +262,15 @@ TEST(Soak, ReplayAtFourTimesRealTimeWithConcurrentServiceCalls) {
     return v[std::min(v.size() - 1, static_cast<size_t>(p * (v.size() - 1) + 0.5))];
   };
   std::ofstream js(out + "/soak.json");
-  js << "{\n  \"seconds\": " << (last.t) << ",\n  \"rate\": 4,\n  \"images_received\": " << last.received
-     << ",\n  \"images_processed\": " << last.processed << ",\n  \"images_dropped\": " << last.dropped
-     << ",\n  \"images_rejected\": " << last.rejected << ",\n  \"keyframes\": " << last.keyframes
-     << ",\n  \"map_mb\": " << map_mb << ",\n  \"rss_warm_mb\": " << warm.rss_mb
-     << ",\n  \"rss_end_mb\": " << last.rss_mb << ",\n  \"rss_peak_mb\": " << peak
-     << ",\n  \"rss_growth_mb\": " << rss_growth_mb << ",\n  \"map_growth_mb\": " << map_growth_mb
-     << ",\n  \"allowed_growth_mb\": " << allowed_mb << ",\n  \"warmup_s\": " << warm.t
-     << ",\n  \"services\": [\n";
+  js << "{\n  \"seconds\": " << (last.t)
+     << ",\n  \"rate\": 4,\n  \"images_received\": " << last.received
+     << ",\n  \"images_processed\": " << last.processed
+     << ",\n  \"images_dropped\": " << last.dropped << ",\n  \"images_rejected\": " << last.rejected
+     << ",\n  \"keyframes\": " << last.keyframes << ",\n  \"map_mb\": " << map_mb
+     << ",\n  \"rss_warm_mb\": " << warm.rss_mb << ",\n  \"rss_end_mb\": " << last.rss_mb
+     << ",\n  \"rss_peak_mb\": " << peak << ",\n  \"rss_growth_mb\": " << rss_growth_mb
+     << ",\n  \"map_growth_mb\": " << map_growth_mb << ",\n  \"allowed_growth_mb\": " << allowed_mb
+     << ",\n  \"warmup_s\": " << warm.t << ",\n  \"services\": [\n";
   bool first = true;
   for (CallStats* st : {&query, &by_id, &localize, &info_stats, &save}) {
     js << (first ? "" : ",\n") << "    {\"name\": \"" << st->name << "\", \"calls\": " << st->calls
@@ -278,14 +287,15 @@ TEST(Soak, ReplayAtFourTimesRealTimeWithConcurrentServiceCalls) {
   js << "  ]\n}\n";
   uint64_t failed = 0;
   for (CallStats* st : {&query, &by_id, &localize, &info_stats, &save}) failed += st->failures;
-  std::printf("soak: %.0f s, %llu images processed, %u keyframes (map %.1f MB), RSS %.0f -> %.0f MB "
-              "(growth %.1f MB, allowed %.1f MB), %llu + %llu + %llu + %llu service calls, %llu failed\n",
-              last.t, static_cast<unsigned long long>(last.processed), last.keyframes, map_mb, warm.rss_mb,
-              last.rss_mb, rss_growth_mb, allowed_mb, static_cast<unsigned long long>(query.calls.load()),
-              static_cast<unsigned long long>(by_id.calls.load()),
-              static_cast<unsigned long long>(localize.calls.load()),
-              static_cast<unsigned long long>(info_stats.calls.load()),
-              static_cast<unsigned long long>(failed));
+  std::printf(
+      "soak: %.0f s, %llu images processed, %u keyframes (map %.1f MB), RSS %.0f -> %.0f MB "
+      "(growth %.1f MB, allowed %.1f MB), %llu + %llu + %llu + %llu service calls, %llu failed\n",
+      last.t, static_cast<unsigned long long>(last.processed), last.keyframes, map_mb, warm.rss_mb,
+      last.rss_mb, rss_growth_mb, allowed_mb, static_cast<unsigned long long>(query.calls.load()),
+      static_cast<unsigned long long>(by_id.calls.load()),
+      static_cast<unsigned long long>(localize.calls.load()),
+      static_cast<unsigned long long>(info_stats.calls.load()),
+      static_cast<unsigned long long>(failed));
 }
 
 }  // namespace

@@ -54,7 +54,9 @@ class BinaryWriter {
     if (count > 0) std::memcpy(&buf_[at], data, count * sizeof(T));
   }
   template <typename T>
-  void PutVector(const std::vector<T>& v) { PutArray(v.data(), v.size()); }
+  void PutVector(const std::vector<T>& v) {
+    PutArray(v.data(), v.size());
+  }
   void PutString(const std::string& s) { PutArray(s.data(), s.size()); }
   std::string& buffer() { return buf_; }
 

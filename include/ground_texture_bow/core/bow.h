@@ -33,8 +33,8 @@ std::string ScoringName(Scoring scoring);
 
 struct BowOptions {
   SizeBinning size_binning = SizeBinning::kOctave;  // §II-A; kNone means S = 1
-  int num_size_bins = 8;                 // S (octave binning: one bin per ORB pyramid level)
-  int soft_assignment = 3;               // r nearest words per descriptor; 1 = hard assignment
+  int num_size_bins = 8;    // S (octave binning: one bin per ORB pyramid level)
+  int soft_assignment = 3;  // r nearest words per descriptor; 1 = hard assignment
   // Soft-assignment scale sigma of exp(-d^2 / 2 sigma^2), in the metric's units (L2 of the
   // descriptor bytes, or Hamming bits). The paper's "sigma = 580" read as an L2 scale is 580;
   // the authors' code uses 580 as sigma^2 of Hamming bits, i.e. sigma = sqrt(580) = 24.08.

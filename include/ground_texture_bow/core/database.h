@@ -53,9 +53,9 @@ struct MatchPair {
 };
 
 struct QueryResult {
-  uint32_t image = 0;            // database image id (as returned by Add)
-  float score = 0.0f;            // similarity: best-bin vote (OV) or dot / L1 score
-  int orientation_bin = -1;      // winning bin, -1 without orientation verification
+  uint32_t image = 0;              // database image id (as returned by Add)
+  float score = 0.0f;              // similarity: best-bin vote (OV) or dot / L1 score
+  int orientation_bin = -1;        // winning bin, -1 without orientation verification
   std::vector<MatchPair> matches;  // pairs voting in the winning bin (or all shared-row pairs)
 };
 
@@ -81,12 +81,12 @@ class BowDatabase {
   std::vector<QueryResult> Query(const BowVector& query, size_t top_n,
                                  bool with_matches = true) const;
 
-  size_t size() const;          // images present
-  uint32_t next_id() const;     // ids handed out so far
+  size_t size() const;       // images present
+  uint32_t next_id() const;  // ids handed out so far
   uint32_t num_rows() const { return num_rows_; }
   const BowOptions& options() const { return options_; }
-  size_t MemoryBytes() const;   // rows, entries (mapped, owned, spare capacity) and image flags
-  size_t num_entries() const;   // keypoint entries in all rows
+  size_t MemoryBytes() const;  // rows, entries (mapped, owned, spare capacity) and image flags
+  size_t num_entries() const;  // keypoint entries in all rows
   // Threads one query may use (blocks of image ids are shared among them); 1 by default.
   void set_query_threads(int threads);
   int query_threads() const { return query_threads_; }
@@ -120,8 +120,8 @@ class BowDatabase {
   // One of the two, as options_.compact_postings says; guarded by mutex_.
   std::unique_ptr<detail::PostingIndex<detail::CompactEntry>> compact_;
   std::unique_ptr<detail::PostingIndex<detail::PreciseEntry>> precise_;
-  std::vector<uint8_t> removed_;   // per image id; guarded by mutex_
-  size_t live_ = 0;                // guarded by mutex_
+  std::vector<uint8_t> removed_;  // per image id; guarded by mutex_
+  size_t live_ = 0;               // guarded by mutex_
 };
 
 }  // namespace gtbow

@@ -22,7 +22,8 @@ E ParseEnumName(const std::string& name, const char* what, const EnumName<E> (&t
     if (name == e.name) return e.value;
     valid += (valid.empty() ? "" : ", ") + std::string(e.name);
   }
-  throw std::invalid_argument("unknown " + std::string(what) + " '" + name + "' (valid: " + valid + ")");
+  throw std::invalid_argument("unknown " + std::string(what) + " '" + name + "' (valid: " + valid +
+                              ")");
 }
 
 // The name of `value` ("?" for a value outside the table).

@@ -31,20 +31,20 @@ struct FeatureOptions {
   FeatureType type = FeatureType::kOrb;  // detector and descriptor
   int num_features = 250;                // keypoints kept per image (paper: 250)
   // ORB (cv::ORB); the defaults are the paper's (8 levels at scale 1.2).
-  float orb_scale_factor = 1.2f;         // pyramid scale step
-  int orb_num_levels = 8;                // pyramid levels
-  int orb_edge_threshold = 31;           // border without features, pixels
-  int orb_first_level = 0;               // pyramid level of the source image
-  int orb_wta_k = 2;                     // points per BRIEF comparison (2, 3 or 4)
-  bool orb_fast_score = false;           // rank by FAST score instead of Harris
-  int orb_patch_size = 31;               // descriptor patch, pixels
-  int orb_fast_threshold = 20;           // FAST threshold, grey levels
+  float orb_scale_factor = 1.2f;  // pyramid scale step
+  int orb_num_levels = 8;         // pyramid levels
+  int orb_edge_threshold = 31;    // border without features, pixels
+  int orb_first_level = 0;        // pyramid level of the source image
+  int orb_wta_k = 2;              // points per BRIEF comparison (2, 3 or 4)
+  bool orb_fast_score = false;    // rank by FAST score instead of Harris
+  int orb_patch_size = 31;        // descriptor patch, pixels
+  int orb_fast_threshold = 20;    // FAST threshold, grey levels
   // Adaptation to the floor (ORB). All off is the paper's plain ORB.
-  Contrast contrast = Contrast::kNone;   // contrast adaptation before detection
-  double contrast_target = 12.0;         // kNormalize: fine-detail deviation to reach, grey levels
-  double contrast_max_gain = 4.0;        // kNormalize: largest gain
-  double clahe_clip = 2.0;               // kClahe: clip limit
-  int clahe_tiles = 8;                   // kClahe: tiles along each image axis
+  Contrast contrast = Contrast::kNone;  // contrast adaptation before detection
+  double contrast_target = 12.0;        // kNormalize: fine-detail deviation to reach, grey levels
+  double contrast_max_gain = 4.0;       // kNormalize: largest gain
+  double clahe_clip = 2.0;              // kClahe: clip limit
+  int clahe_tiles = 8;                  // kClahe: tiles along each image axis
   // Adaptive FAST threshold: when an image yields fewer than num_features keypoints, detect
   // again with the threshold halved, down to this (0: the threshold is fixed).
   int orb_min_fast_threshold = 0;
@@ -60,10 +60,10 @@ struct FeatureOptions {
   // extraction time on the real-floor benchmark (docs/RESULTS.md).
   bool grid_refill = false;
   // SIFT (cv::SIFT).
-  int sift_octave_layers = 3;            // layers per octave
-  double sift_contrast_threshold = 0.04; // DoG contrast threshold
-  double sift_edge_threshold = 10.0;     // edge response threshold
-  double sift_sigma = 1.6;               // Gaussian of octave 0, pixels
+  int sift_octave_layers = 3;             // layers per octave
+  double sift_contrast_threshold = 0.04;  // DoG contrast threshold
+  double sift_edge_threshold = 10.0;      // edge response threshold
+  double sift_sigma = 1.6;                // Gaussian of octave 0, pixels
 
   // Throws std::invalid_argument naming the first bad field.
   void Check() const;

@@ -24,8 +24,8 @@ struct Pose2D {
 
 // Intrinsics shared by every image of a dataset: size in pixels and ground sampling distance.
 struct ImageGeometry {
-  int width = 640;                  // pixels
-  int height = 480;                 // pixels
+  int width = 640;                    // pixels
+  int height = 480;                   // pixels
   double meters_per_pixel = 0.00025;  // metres per pixel, > 0
 };
 

@@ -50,10 +50,10 @@ struct Keyframe {
   int64_t stamp_ns = 0;  // acquisition time, nanoseconds since the epoch
   bool has_pose = false;
   Pose2D map_from_camera;
-  int width = 0;         // image size, pixels
+  int width = 0;  // image size, pixels
   int height = 0;
   std::vector<Keypoint> keypoints;
-  cv::Mat descriptors;   // kept so that a keyframe can be queried again by id
+  cv::Mat descriptors;  // kept so that a keyframe can be queried again by id
 };
 
 // An image ready to insert or query: its features and BoW vector.
@@ -72,9 +72,9 @@ struct Candidate {
   float score = 0.0f;
   int64_t stamp_ns = 0;
   bool has_pose = false;
-  Pose2D map_from_camera;  // the keyframe's pose (has_pose)
-  bool verified = false;   // verification was asked for and succeeded
-  PoseEstimate relative;   // match_from_query (when verification was asked for)
+  Pose2D map_from_camera;     // the keyframe's pose (has_pose)
+  bool verified = false;      // verification was asked for and succeeded
+  PoseEstimate relative;      // match_from_query (when verification was asked for)
   std::vector<Vec2> inliers;  // query pixels of the verified matches (for overlays)
 };
 
@@ -125,9 +125,9 @@ class Localizer {
 
   void Reset();  // forgets every keyframe
 
-  size_t size() const;                              // keyframes
+  size_t size() const;                                      // keyframes
   std::optional<Keyframe> KeyframeInfo(uint32_t id) const;  // a copy, without descriptors
-  std::vector<Keyframe> Keyframes() const;          // every keyframe, without features
+  std::vector<Keyframe> Keyframes() const;                  // every keyframe, without features
   const Vocabulary& vocabulary() const { return *vocabulary_; }
   const std::string& vocabulary_path() const { return vocabulary_path_; }
   const LocalizerOptions& options() const { return options_; }
@@ -142,9 +142,9 @@ class Localizer {
   std::string vocabulary_path_;
   LocalizerOptions options_;
   std::unique_ptr<BowEncoder> encoder_;
-  mutable std::shared_mutex mutex_;             // guards database_ and keyframes_
-  std::unique_ptr<BowDatabase> database_;       // guarded by mutex_
-  std::vector<Keyframe> keyframes_;             // by id; guarded by mutex_
+  mutable std::shared_mutex mutex_;        // guards database_ and keyframes_
+  std::unique_ptr<BowDatabase> database_;  // guarded by mutex_
+  std::vector<Keyframe> keyframes_;        // by id; guarded by mutex_
 };
 
 }  // namespace gtbow

@@ -18,7 +18,8 @@ namespace gtbow {
 
 // `requested` threads, or every core for 0 or less (at least 1).
 inline int ThreadCount(int requested) {
-  return requested > 0 ? requested : static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
+  return requested > 0 ? requested
+                       : static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
 }
 
 // Runs task(t) for t in [0, tasks), each on its own thread (task 0 on the calling thread).
@@ -58,7 +59,8 @@ template <typename F>
 void ParallelParts(size_t n, int threads, size_t min_per_part, F&& body) {
   if (n == 0) return;
   const size_t cap = n / std::max<size_t>(1, min_per_part) + 1;
-  const int parts = static_cast<int>(std::max<size_t>(1, std::min<size_t>(ThreadCount(threads), cap)));
+  const int parts =
+      static_cast<int>(std::max<size_t>(1, std::min<size_t>(ThreadCount(threads), cap)));
   const size_t chunk = (n + parts - 1) / parts;
   RunTasks(parts, [&](int t) {
     const size_t b = static_cast<size_t>(t) * chunk, e = std::min(n, b + chunk);
@@ -90,7 +92,8 @@ void ParallelForEach(size_t n, int threads, MakeState&& make_state, F&& body) {
 // Runs body(i) for every i in [0, n), items handed out one at a time (see above).
 template <typename F>
 void ParallelForEach(size_t n, int threads, F&& body) {
-  ParallelForEach(n, threads, [] { return 0; }, [&](int, size_t i) { body(i); });
+  ParallelForEach(
+      n, threads, [] { return 0; }, [&](int, size_t i) { body(i); });
 }
 
 }  // namespace gtbow

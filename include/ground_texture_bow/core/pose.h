@@ -21,13 +21,14 @@
 namespace gtbow {
 
 struct PoseOptions {
-  int max_iterations = 1000;        // RANSAC hypotheses at most
-  double confidence = 0.999;        // stop once an all-inlier sample was this likely drawn
-  double inlier_threshold = 3.0;    // pixels: residual of an inlier
-  int min_inliers = 6;              // fewer inliers: no estimate (6 of 2-point-consistent matches within 3 px: no false pose seen)
-  bool weighted = true;             // paper: weighted sampling and scoring; false: plain RANSAC
-  int refine_iterations = 3;        // least-squares refinement rounds (inliers re-selected)
-  uint64_t seed = 1;                // sampling seed (estimates are deterministic)
+  int max_iterations = 1000;      // RANSAC hypotheses at most
+  double confidence = 0.999;      // stop once an all-inlier sample was this likely drawn
+  double inlier_threshold = 3.0;  // pixels: residual of an inlier
+  int min_inliers = 6;   // fewer inliers: no estimate (6 of 2-point-consistent matches within 3 px:
+                         // no false pose seen)
+  bool weighted = true;  // paper: weighted sampling and scoring; false: plain RANSAC
+  int refine_iterations = 3;  // least-squares refinement rounds (inliers re-selected)
+  uint64_t seed = 1;          // sampling seed (estimates are deterministic)
 
   // Throws std::invalid_argument naming the first bad field.
   void Check() const;
@@ -50,11 +51,11 @@ struct Rigid2D {
 
 struct PoseEstimate {
   bool success = false;
-  std::string reason;            // why there is no estimate (empty on success)
-  Rigid2D database_from_query;   // pixels
-  Pose2D floor_from_query;       // metres and radians, through the database image's pose
+  std::string reason;           // why there is no estimate (empty on success)
+  Rigid2D database_from_query;  // pixels
+  Pose2D floor_from_query;      // metres and radians, through the database image's pose
   int inliers = 0;
-  double residual_rms = 0.0;     // pixels, over the inliers
+  double residual_rms = 0.0;  // pixels, over the inliers
   // Covariance of (x, y, theta) of floor_from_query, row-major: m^2, m rad, rad^2.
   std::array<double, 9> covariance{};
   std::vector<int> inlier_indices;  // into the matches given
@@ -82,10 +83,10 @@ struct LocalizationOptions {
 // the node), with estimate.covariance and estimate.inliers.
 struct Localization {
   bool success = false;
-  std::string reason;        // why no candidate gave a pose (empty on success)
-  uint32_t image = 0;        // the database image (keyframe) that gave the pose
-  int rank = -1;             // its rank among the retrieved candidates (0 = first)
-  float score = 0.0f;        // its retrieval score
+  std::string reason;  // why no candidate gave a pose (empty on success)
+  uint32_t image = 0;  // the database image (keyframe) that gave the pose
+  int rank = -1;       // its rank among the retrieved candidates (0 = first)
+  float score = 0.0f;  // its retrieval score
   PoseEstimate estimate;
   std::vector<Vec2> inlier_pixels;  // query pixels of the inlier matches (for overlays)
 };

@@ -44,27 +44,27 @@ std::string MetricName(Metric metric);
 struct VocabularyOptions {
   VocabularyKind kind = VocabularyKind::kAkm;
   Metric metric = Metric::kL2Bytes;
-  int num_words = 100000;        // AKM: V, the number of words
-  int kmeans_iterations = 10;    // AKM: Lloyd iterations (the most, with kmeans_stop_fraction)
+  int num_words = 100000;      // AKM: V, the number of words
+  int kmeans_iterations = 10;  // AKM: Lloyd iterations (the most, with kmeans_stop_fraction)
   // AKM: stop k-means early once fewer than this fraction of the descriptors change word in an
   // iteration, after at least kmeans_min_iterations (the authors' code: 0.01 after 5, at most
   // 200 iterations). 0 runs all kmeans_iterations.
   double kmeans_stop_fraction = 0.0;
   int kmeans_min_iterations = 5;
-  int num_trees = 8;             // AKM: randomized kd-trees (L2) or clustering trees (Hamming)
-  int checks = 64;               // AKM, flann: leaves visited per ANN query (speed vs accuracy)
+  int num_trees = 8;  // AKM: randomized kd-trees (L2) or clustering trees (Hamming)
+  int checks = 64;    // AKM, flann: leaves visited per ANN query (speed vs accuracy)
   // AKM training: leaves visited per FLANN search in k-means (0: max(2000, V / 5), the authors'
   // rule). Training of a Hamming vocabulary with ann: ivf searches the binary IVF instead.
   int train_checks = 0;
-  AnnIndex ann = AnnIndex::kIvf; // AKM: query-time word search
-  int nprobe = 16;               // AKM, ivf: groups of words searched per descriptor
+  AnnIndex ann = AnnIndex::kIvf;  // AKM: query-time word search
+  int nprobe = 16;                // AKM, ivf: groups of words searched per descriptor
   // AKM, Hamming with ann: ivf: lists searched per descriptor in k-means training (0 = all:
   // exact assignment).
   int train_nprobe = 0;
-  int hkm_branching = 10;        // HKM: k, children per node
-  int hkm_depth = 5;             // HKM: L, levels (k = 10, L = 5: the paper's DBoW baseline)
-  uint64_t seed = 1;             // k-means seeding and kd-tree randomisation
-  int threads = 0;               // training threads, 0 = all cores
+  int hkm_branching = 10;  // HKM: k, children per node
+  int hkm_depth = 5;       // HKM: L, levels (k = 10, L = 5: the paper's DBoW baseline)
+  uint64_t seed = 1;       // k-means seeding and kd-tree randomisation
+  int threads = 0;         // training threads, 0 = all cores
 
   // Throws std::invalid_argument naming the first bad field.
   void Check() const;

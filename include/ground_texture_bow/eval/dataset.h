@@ -17,11 +17,11 @@ namespace gtbow {
 
 // Contents of dataset.yaml.
 struct DatasetInfo {
-  int format_version = 1;                     // only version 1 exists
-  std::string name;                           // free text
-  std::string surface;                        // free text, e.g. "asphalt"
-  ImageGeometry geometry;                     // image size (pixels) and metres per pixel
-  std::map<std::string, double> query_days;   // optional: age of each query split, days
+  int format_version = 1;                    // only version 1 exists
+  std::string name;                          // free text
+  std::string surface;                       // free text, e.g. "asphalt"
+  ImageGeometry geometry;                    // image size (pixels) and metres per pixel
+  std::map<std::string, double> query_days;  // optional: age of each query split, days
 };
 
 // One row of poses.csv.

@@ -16,10 +16,10 @@
 #include <geometry_msgs/Pose2D.h>
 #include <geometry_msgs/PoseWithCovarianceStamped.h>
 #include <geometry_msgs/Transform.h>
-#include <opencv2/core.hpp>
 #include <ros/time.h>
 #include <sensor_msgs/CompressedImage.h>
 #include <sensor_msgs/Image.h>
+#include <opencv2/core.hpp>
 
 #include "ground_texture_bow/Candidate.h"
 #include "ground_texture_bow/Status.h"

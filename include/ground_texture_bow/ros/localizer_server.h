@@ -47,9 +47,9 @@ std::string ModeName(Mode mode);
 
 // Every parameter of config/localizer.yaml (names and meanings are documented there).
 struct ServerOptions {
-  std::string vocabulary;              // vocabulary file (.gtvoc); or taken from `map`
-  std::string preset;                  // retrieval preset YAML; empty: config/high_accuracy.yaml
-  std::string map;                     // map file loaded at start (optional)
+  std::string vocabulary;  // vocabulary file (.gtvoc); or taken from `map`
+  std::string preset;      // retrieval preset YAML; empty: config/high_accuracy.yaml
+  std::string map;         // map file loaded at start (optional)
   // The engine's options, checked by the engine (LocalizerOptions::Check): the retrieval
   // options from the preset, and ~threads (threads per image: descriptor assignment, query
   // blocks), ~meters_per_pixel, ~candidates (K retrieved and verified) and ~min_inliers.
@@ -57,18 +57,18 @@ struct ServerOptions {
   Mode mode = Mode::kMapping;
   std::string map_frame = "map";
   std::string odom_frame = "odom";
-  std::string camera_frame;            // overrides the image header's frame_id when set
-  std::string transport = "raw";       // raw (image_transport) or compressed (<image>/compressed)
-  bool use_tf = true;                  // look up the camera pose in map_frame
-  double tf_timeout = 0.05;            // seconds to wait for a transform
-  double keyframe_min_distance = 0.05; // metres moved since the last keyframe
-  double keyframe_min_angle = 0.35;    // radians turned since the last keyframe
-  int keyframe_every_n = 10;           // without TF: every Nth processed image
-  int exclude_recent = 20;             // newest keyframes not reported as loop closures
-  bool publish_tf = false;             // publish map -> odom from fixes
-  double localized_timeout = 2.0;      // seconds a fix counts as "localized" in diagnostics
-  double planar_variance = 1e-9;       // variance on z, roll and pitch of ~pose
-  double camera_height = 0.0;          // for markers only, metres
+  std::string camera_frame;             // overrides the image header's frame_id when set
+  std::string transport = "raw";        // raw (image_transport) or compressed (<image>/compressed)
+  bool use_tf = true;                   // look up the camera pose in map_frame
+  double tf_timeout = 0.05;             // seconds to wait for a transform
+  double keyframe_min_distance = 0.05;  // metres moved since the last keyframe
+  double keyframe_min_angle = 0.35;     // radians turned since the last keyframe
+  int keyframe_every_n = 10;            // without TF: every Nth processed image
+  int exclude_recent = 20;              // newest keyframes not reported as loop closures
+  bool publish_tf = false;              // publish map -> odom from fixes
+  double localized_timeout = 2.0;       // seconds a fix counts as "localized" in diagnostics
+  double planar_variance = 1e-9;        // variance on z, roll and pitch of ~pose
+  double camera_height = 0.0;           // for markers only, metres
 
   // The node's defaults for the engine's options: 2 threads, 0.25 mm per pixel, K = 5,
   // 6 inliers.
@@ -144,11 +144,15 @@ class LocalizerServer {
                      ground_texture_bow::AddKeyframe::Response& res);
   bool OnLocalize(ground_texture_bow::Localize::Request& req,
                   ground_texture_bow::Localize::Response& res);
-  bool OnSaveMap(ground_texture_bow::SaveMap::Request& req, ground_texture_bow::SaveMap::Response& res);
-  bool OnLoadMap(ground_texture_bow::LoadMap::Request& req, ground_texture_bow::LoadMap::Response& res);
+  bool OnSaveMap(ground_texture_bow::SaveMap::Request& req,
+                 ground_texture_bow::SaveMap::Response& res);
+  bool OnLoadMap(ground_texture_bow::LoadMap::Request& req,
+                 ground_texture_bow::LoadMap::Response& res);
   bool OnReset(ground_texture_bow::Reset::Request& req, ground_texture_bow::Reset::Response& res);
-  bool OnGetInfo(ground_texture_bow::GetInfo::Request& req, ground_texture_bow::GetInfo::Response& res);
-  bool OnSetMode(ground_texture_bow::SetMode::Request& req, ground_texture_bow::SetMode::Response& res);
+  bool OnGetInfo(ground_texture_bow::GetInfo::Request& req,
+                 ground_texture_bow::GetInfo::Response& res);
+  bool OnSetMode(ground_texture_bow::SetMode::Request& req,
+                 ground_texture_bow::SetMode::Response& res);
 
   ros::NodeHandle nh_, pnh_;
   ServerOptions options_;
@@ -169,15 +173,14 @@ class LocalizerServer {
 
   std::atomic<Mode> mode_;
   std::atomic<uint64_t> received_{0}, processed_{0}, dropped_{0}, rejected_{0}, debug_images_{0},
-      rejected_requests_{0}, missing_tf_{0},
-      fixes_{0}, loop_closures_{0}, failed_fixes_{0};
+      rejected_requests_{0}, missing_tf_{0}, fixes_{0}, loop_closures_{0}, failed_fixes_{0};
   std::atomic<double> last_processing_ms_{0.0};
   std::atomic<double> input_rate_hz_{0.0};
 
   std::mutex slot_mutex_;
   std::condition_variable slot_cv_;
-  Pending pending_;                     // guarded by slot_mutex_
-  bool stop_ = false;                   // guarded by slot_mutex_
+  Pending pending_;    // guarded by slot_mutex_
+  bool stop_ = false;  // guarded by slot_mutex_
   std::thread worker_;
 
   std::mutex state_mutex_;

@@ -45,9 +45,15 @@ Homography Camera::FloorFromImagePixel(const Pose2D& p, double scale, double til
   const double c = std::cos(p.theta), sn = std::sin(p.theta);
   // With centred pixels d = (u - cu, v - cv) and w = 1 + tilt . d:
   // floor = ([x, y] * w + k R(theta) d) / w.
-  const double hc[9] = {k * c + p.x * tilt_u, -k * sn + p.x * tilt_v, p.x,
-                        k * sn + p.y * tilt_u, k * c + p.y * tilt_v,   p.y,
-                        tilt_u,                tilt_v,                 1.0};
+  const double hc[9] = {k * c + p.x * tilt_u,
+                        -k * sn + p.x * tilt_v,
+                        p.x,
+                        k * sn + p.y * tilt_u,
+                        k * c + p.y * tilt_v,
+                        p.y,
+                        tilt_u,
+                        tilt_v,
+                        1.0};
   const double centre[9] = {1, 0, -cu, 0, 1, -cv, 0, 0, 1};
   Homography h{};
   for (int i = 0; i < 3; ++i) {
@@ -74,8 +80,9 @@ cv::Mat Camera::Capture(const Floor& floor, const Pose2D& pose, const FloorState
   }
   if (!(lighting.gamma > 0) || !(lighting.directional_scale >= 0) ||
       !std::isfinite(lighting.azimuth_offset)) {
-    throw std::invalid_argument("Camera::Capture: lighting gamma must be > 0, directional_scale "
-                                ">= 0 and azimuth_offset finite");
+    throw std::invalid_argument(
+        "Camera::Capture: lighting gamma must be > 0, directional_scale "
+        ">= 0 and azimuth_offset finite");
   }
   FloorState lit = state;
   lit.directional = std::clamp(o.light_directional * lighting.directional_scale, 0.0, 1.0);
@@ -125,8 +132,8 @@ cv::Mat Camera::Capture(const Floor& floor, const Pose2D& pose, const FloorState
     const float row_gain = static_cast<float>(gain) * (1.0f + gv * dv);
     for (int u = 0; u < img.cols; ++u) {
       const float du = static_cast<float>(u - cu);
-      const float illum = row_gain * (1.0f - vig * (du * du + dv * dv)) + row_gain * gu * du *
-                          (1.0f - vig * (du * du + dv * dv));
+      const float illum = row_gain * (1.0f - vig * (du * du + dv * dv)) +
+                          row_gain * gu * du * (1.0f - vig * (du * du + dv * dv));
       const float val = (gamma_one ? in[u] : std::pow(std::max(in[u], 0.0f), g)) * illum;
       const float sd = std::sqrt(var_read + shot * std::max(0.0f, val));
       const float q = (val + sd * n[u]) * 255.0f + 0.5f;

@@ -33,8 +33,8 @@ constexpr int kCoarse = 4;  // the laminate grain distortion is evaluated every 
 struct View {
   int w = 0;
   int h = 0;
-  double m[9];    // floor_mm_from_pixel
-  double inv[9];  // pixel_from_floor_mm
+  double m[9];                    // floor_mm_from_pixel
+  double inv[9];                  // pixel_from_floor_mm
   double xmin, xmax, ymin, ymax;  // floor bounding box of the view, mm
 
   int ci0 = 0, cj0 = 0, ci1 = 0, cj1 = 0;  // clip rectangle (inclusive pixel range)
@@ -62,8 +62,10 @@ struct View {
   void ComputeBounds() {
     xmin = ymin = std::numeric_limits<double>::max();
     xmax = ymax = std::numeric_limits<double>::lowest();
-    const double corners[4][2] = {{ci0 - 0.5, cj0 - 0.5}, {ci1 + 0.5, cj0 - 0.5},
-                                  {ci0 - 0.5, cj1 + 0.5}, {ci1 + 0.5, cj1 + 0.5}};
+    const double corners[4][2] = {{ci0 - 0.5, cj0 - 0.5},
+                                  {ci1 + 0.5, cj0 - 0.5},
+                                  {ci0 - 0.5, cj1 + 0.5},
+                                  {ci1 + 0.5, cj1 + 0.5}};
     for (const auto& c : corners) {
       double x, y;
       FloorAt(c[0], c[1], &x, &y);
@@ -229,7 +231,8 @@ cv::Mat LatticeNoise(const View& v, double cell, uint32_t seed) {
       v.FloorAt(i0 + kStep, j, &xb, &yb);
       runs[r] = {static_cast<float>(xa * k - static_cast<double>(ix0)),
                  static_cast<float>(ya * k - static_cast<double>(iy0)),
-                 static_cast<float>((xb - xa) * k / kStep), static_cast<float>((yb - ya) * k / kStep)};
+                 static_cast<float>((xb - xa) * k / kStep),
+                 static_cast<float>((yb - ya) * k / kStep)};
     }
     InterpolateRow(lattice.ptr<float>(), nx, runs.data(), v.w, out.ptr<float>(j));
   }
@@ -268,9 +271,8 @@ void ForEachSpanNear(const View& v, double cx, double cy, double radius, G&& g) 
     const int k0 = std::max(0, static_cast<int>(CeilD((-b - root) * inv_a)));
     const int k1 = std::min(last, static_cast<int>(FloorD((-b + root) * inv_a)));
     if (k1 < k0) continue;
-    g(static_cast<float>(dx0 + k0 * sx), static_cast<float>(dy0 + k0 * sy),
-      static_cast<float>(sx), static_cast<float>(sy), static_cast<size_t>(j) * v.w + i0 + k0,
-      k1 - k0 + 1);
+    g(static_cast<float>(dx0 + k0 * sx), static_cast<float>(dy0 + k0 * sy), static_cast<float>(sx),
+      static_cast<float>(sy), static_cast<size_t>(j) * v.w + i0 + k0, k1 - k0 + 1);
   }
 }
 
@@ -403,8 +405,12 @@ struct Canvas {
   std::vector<float> height;  // relief, mm above the binder (0 where a surface has none)
 
   Canvas(const View& v, float* out)
-      : fine(v), region(v), value(out), depth(static_cast<size_t>(v.w) * v.h, -1.0f),
-        grain_buf(v.h, v.w, CV_32F), grain(grain_buf.ptr<float>()),
+      : fine(v),
+        region(v),
+        value(out),
+        depth(static_cast<size_t>(v.w) * v.h, -1.0f),
+        grain_buf(v.h, v.w, CV_32F),
+        grain(grain_buf.ptr<float>()),
         height(static_cast<size_t>(v.w) * v.h, 0.0f) {}
 
   cv::Mat Noise(double cell, uint32_t seed) const { return LatticeNoise(fine, cell, seed); }
@@ -428,20 +434,24 @@ struct Canvas {
   }
 };
 
-uint64_t LayerSeed(uint64_t seed, uint64_t layer) { return HashCombine(seed, layer * 0x1000193ULL); }
-uint32_t Seed32(uint64_t seed, uint64_t layer) { return static_cast<uint32_t>(LayerSeed(seed, layer)); }
+uint64_t LayerSeed(uint64_t seed, uint64_t layer) {
+  return HashCombine(seed, layer * 0x1000193ULL);
+}
+uint32_t Seed32(uint64_t seed, uint64_t layer) {
+  return static_cast<uint32_t>(LayerSeed(seed, layer));
+}
 
 // A stone's outline and shading, in float for the per-pixel kernel. The outline is the
 // polynomial "egg" q(u, v) = ((u/a)^2 + (v/b)^2) (1 + e_u u/a + e_v v/b) < 1 in the stone's
 // own axes (u, v), roughened by the floor-fixed grain noise: no square root or division per
 // pixel, so the kernel vectorises well.
 struct StoneShape {
-  float cos_a, sin_a;   // stone axes
-  float inv_a, inv_b;   // 1 / semi-axes, 1/mm
-  float egg_u, egg_v;   // asymmetry
-  float rough;          // outline roughness from the grain noise
+  float cos_a, sin_a;  // stone axes
+  float inv_a, inv_b;  // 1 / semi-axes, 1/mm
+  float egg_u, egg_v;  // asymmetry
+  float rough;         // outline roughness from the grain noise
   float bright, texture, coat, light_u, light_v, depth;
-  float height;         // protrusion above the binder at the centre, mm
+  float height;  // protrusion above the binder at the centre, mm
 };
 
 // A run of `n` pixels of one image row starting at pixel index `idx`, whose floor offsets from
@@ -462,9 +472,8 @@ void StoneRuns(const PixelRun* runs, int count, float sx, float sy, float* __res
                float* __restrict value, float* __restrict height, const float* __restrict grain,
                const StoneShape& st) {
   const float ca = st.cos_a, sa = st.sin_a, ia = st.inv_a, ib = st.inv_b, eu = st.egg_u,
-              ev = st.egg_v, rough = st.rough, bright = st.bright, amp = st.texture,
-              coat = st.coat, lu = st.light_u, lv = st.light_v, dep_k = st.depth,
-              top = st.height;
+              ev = st.egg_v, rough = st.rough, bright = st.bright, amp = st.texture, coat = st.coat,
+              lu = st.light_u, lv = st.light_v, dep_k = st.depth, top = st.height;
   for (int r = 0; r < count; ++r) {
     const PixelRun run = runs[r];
     float* __restrict d = depth + run.idx;
@@ -478,8 +487,8 @@ void StoneRuns(const PixelRun* runs, int count, float sx, float sy, float* __res
       const float g = gr[k];
       const float q = (u * u + v * v) * (1.0f + eu * u + ev * v) + rough * g;
       const float w = std::min(std::max((q - 0.4f) * (1.0f / 0.6f), 0.0f), 1.0f);
-      const float val = (bright * (1.0f + amp * g) + lu * u + lv * v) *
-                        (1.0f - coat * w * w * (3.0f - 2.0f * w));
+      const float val =
+          (bright * (1.0f + amp * g) + lu * u + lv * v) * (1.0f - coat * w * w * (3.0f - 2.0f * w));
       // A dome: full height at the centre, falling steeply at the rim.
       const float t = std::max(1.0f - q, 0.0f);
       const float h = top * t * (2.0f - t);
@@ -515,8 +524,10 @@ void DrawStones(Canvas& cv, uint64_t seed, double cell, double prob, double rmin
       // Mostly mid greys, some bright (quartz) and some dark (basalt) stones.
       double bright = bright_mean + bright_sd * rng.ApproxNormal();
       const double kind = rng.Uniform();
-      if (kind < 0.12) bright += 0.25;
-      else if (kind < 0.22) bright -= 0.2;
+      if (kind < 0.12)
+        bright += 0.25;
+      else if (kind < 0.22)
+        bright -= 0.2;
       StoneShape st;
       st.cos_a = static_cast<float>(std::cos(ang));
       st.sin_a = static_cast<float>(std::sin(ang));
@@ -604,7 +615,6 @@ void DrawStroke(Canvas& cv, const Stroke& s, float value, float depth, int mode,
 // ---------------------------------------------------------------------------------------------
 // Low-frequency fields: additive brightness and multiplicative dirt, on the coarse grid.
 
-
 // Days until an element born at `birth` has fully developed; strength at `day`.
 inline double Developed(double day, double birth, double tau) {
   return day <= birth ? 0.0 : 1.0 - std::exp(-(day - birth) / tau);
@@ -659,18 +669,21 @@ void DrawWearLowFrequency(const View& cview, uint64_t seed, const FloorState& st
     const float alpha = static_cast<float>(dev * rng.Uniform(0.08, 0.22));
     const uint32_t ns = static_cast<uint32_t>(rng.Next());
     // Skip bands that miss the view entirely.
-    const double vx = 0.5 * (cview.xmin + cview.xmax) - cx, vy = 0.5 * (cview.ymin + cview.ymax) - cy;
+    const double vx = 0.5 * (cview.xmin + cview.xmax) - cx,
+                 vy = 0.5 * (cview.ymin + cview.ymax) - cy;
     const double view_r = 0.5 * std::hypot(cview.xmax - cview.xmin, cview.ymax - cview.ymin);
     if (std::abs(-vx * dyu + vy * dxu) > half_width + view_r) return;
     ForEachPixelNear(cview, cx, cy, half_len, [&](float dx, float dy, size_t idx) {
       const double along = dx * dxu + dy * dyu;
       const double across = -dx * dyu + dy * dxu;
       if (std::abs(across) > half_width) return;
-      const float edge = 1.0f - SmoothStep(0.7f, 1.0f, static_cast<float>(std::abs(across) / half_width));
+      const float edge =
+          1.0f - SmoothStep(0.7f, 1.0f, static_cast<float>(std::abs(across) / half_width));
       const float pattern = 0.6f + 0.4f * static_cast<float>(std::cos(2 * M_PI * along / tread)) *
-                                        (std::abs(across) < 0.5 * half_width ? 1.0f : -1.0f);
+                                       (std::abs(across) < 0.5 * half_width ? 1.0f : -1.0f);
       const float patch = 0.5f + 0.5f * ValueNoise(along / 30.0, across / 15.0, ns);
-      const float fade = 1.0f - SmoothStep(0.6f, 1.0f, static_cast<float>(std::abs(along) / half_len));
+      const float fade =
+          1.0f - SmoothStep(0.6f, 1.0f, static_cast<float>(std::abs(along) / half_len));
       m[idx] *= 1.0f - alpha * edge * pattern * patch * fade;
     });
   });
@@ -685,8 +698,8 @@ void DrawWearFine(Canvas& cv, uint64_t seed, const FloorState& st) {
       Stroke s;
       s.width = rng.Uniform(0.15, 0.8);
       const double len = rng.Uniform(8.0, 40.0);
-      s.Make(rng, x0 + rng.Uniform(0, 45.0), y0 + rng.Uniform(0, 45.0),
-             rng.Uniform(0, 2 * M_PI), len, 0.25);
+      s.Make(rng, x0 + rng.Uniform(0, 45.0), y0 + rng.Uniform(0, 45.0), rng.Uniform(0, 2 * M_PI),
+             len, 0.25);
       const bool rubber = rng.Uniform() < 0.6;  // black rubber scuff or bright scratch
       const float alpha = static_cast<float>(rng.Uniform(0.3, 0.75));
       if (day <= birth) continue;
@@ -708,13 +721,14 @@ void DrawWearFine(Canvas& cv, uint64_t seed, const FloorState& st) {
                   b.Randomize(rng, 1.0);
                   const float v = static_cast<float>(rng.Uniform() < 0.5 ? rng.Uniform(0.75, 1.0)
                                                                          : rng.Uniform(0.02, 0.15));
-                  ForEachPixelNear(cv.region, b.cx, b.cy, b.rmax, [&](float dx, float dy, size_t idx) {
-                    if (b.Normalized(dx, dy) < 1.0) {
-                      cv.value[idx] = v;
-                      cv.depth[idx] = 3.0f;
-                      cv.height[idx] = 1.5f * static_cast<float>(b.r);  // lies on the surface
-                    }
-                  });
+                  ForEachPixelNear(
+                      cv.region, b.cx, b.cy, b.rmax, [&](float dx, float dy, size_t idx) {
+                        if (b.Normalized(dx, dy) < 1.0) {
+                          cv.value[idx] = v;
+                          cv.depth[idx] = 3.0f;
+                          cv.height[idx] = 1.5f * static_cast<float>(b.r);  // lies on the surface
+                        }
+                      });
                 }
               });
 }
@@ -775,7 +789,7 @@ void RenderCarpet(Canvas& cv, uint64_t seed, Phase phase) {
     cv.grain_buf.setTo(0.0f);
     return;
   }
-  constexpr double kTuft = 2.2;  // tuft spacing, mm
+  constexpr double kTuft = 2.2;                             // tuft spacing, mm
   const double pile = HashCombine(seed, 77) % 628 / 100.0;  // prevailing pile direction
   ForEachCell(cv.region, kTuft, 3.0, LayerSeed(seed, 30), [&](CellRng& rng, double x0, double y0) {
     const double tx = x0 + 0.5 * kTuft + 0.25 * kTuft * rng.Uniform(-1, 1);
@@ -831,7 +845,8 @@ void RenderLaminate(Canvas& cv, uint64_t seed, Phase phase, const cv::Mat& disto
     val += 0.035f * ValueNoise(u / 4.0, v / 0.12 + phase, fibre_seed);
     // Seams with a small bevel.
     const double edge = std::min(std::min(u, kPlankL - u), std::min(v, kPlankW - v));
-    if (edge < 0.9) val *= edge < 0.2 ? 0.25f : 0.55f + 0.45f * static_cast<float>((edge - 0.2) / 0.7);
+    if (edge < 0.9)
+      val *= edge < 0.2 ? 0.25f : 0.55f + 0.45f * static_cast<float>((edge - 0.2) / 0.7);
     cv.value[idx] = val;
   });
 }
@@ -862,13 +877,14 @@ void DrawFlecks(Canvas& cv, uint64_t seed, double cell, double prob, double rmin
 // sparse small pinholes, faint flecks of fine aggregate. Nearly flat (polished).
 void RenderSmoothConcrete(Canvas& cv, uint64_t seed, Phase phase) {
   if (phase == Phase::kElements) {
-    DrawFlecks(cv, LayerSeed(seed, 60), 0.7, 0.8, 0.08, 0.35, 0.06);   // sand grains
-    DrawFlecks(cv, LayerSeed(seed, 61), 6.0, 0.5, 0.4, 1.6, 0.04);     // fine aggregate
-    DrawPores(cv, LayerSeed(seed, 62), 2.5, 0.45, 0.06, 0.5, 0.38f);   // pinholes and pits
+    DrawFlecks(cv, LayerSeed(seed, 60), 0.7, 0.8, 0.08, 0.35, 0.06);  // sand grains
+    DrawFlecks(cv, LayerSeed(seed, 61), 6.0, 0.5, 0.4, 1.6, 0.04);    // fine aggregate
+    DrawPores(cv, LayerSeed(seed, 62), 2.5, 0.45, 0.06, 0.5, 0.38f);  // pinholes and pits
     return;
   }
   const uint32_t s1 = Seed32(seed, 1), s2 = Seed32(seed, 2), s3 = Seed32(seed, 4);
-  const cv::Mat fine = cv.Noise(0.4, s2), mid = cv.SmoothNoise(1.5, s1), cloud = cv.SmoothNoise(6.0, s3);
+  const cv::Mat fine = cv.Noise(0.4, s2), mid = cv.SmoothNoise(1.5, s1),
+                cloud = cv.SmoothNoise(6.0, s3);
   const float* f = fine.ptr<float>();
   const float* m = mid.ptr<float>();
   const float* c = cloud.ptr<float>();
@@ -884,16 +900,17 @@ void RenderSmoothConcrete(Canvas& cv, uint64_t seed, Phase phase) {
 // (shaded by the camera's lamp), roller marks, dust specks, bubbles and hairline scratches.
 void RenderEpoxy(Canvas& cv, uint64_t seed, Phase phase) {
   if (phase == Phase::kElements) {
-    DrawFlecks(cv, LayerSeed(seed, 70), 1.2, 0.5, 0.05, 0.25, 0.1);    // dust and filler in the coat
-    DrawPores(cv, LayerSeed(seed, 71), 14.0, 0.3, 0.08, 0.3, 0.3f);    // bubbles, pinholes
-    ForEachCell(cv.region, 18.0, 30.0, LayerSeed(seed, 72), [&](CellRng& rng, double x0, double y0) {
-      if (rng.Uniform() > 0.6) return;                                 // hairline scratches
-      Stroke st;
-      st.width = rng.Uniform(0.04, 0.12);
-      st.Make(rng, x0 + rng.Uniform(0, 18.0), y0 + rng.Uniform(0, 18.0), rng.Uniform(0, 2 * M_PI),
-              rng.Uniform(5.0, 30.0), 0.15);
-      DrawStroke(cv, st, 0.75f, 0.0f, 2, static_cast<float>(rng.Uniform(0.04, 0.12)));
-    });
+    DrawFlecks(cv, LayerSeed(seed, 70), 1.2, 0.5, 0.05, 0.25, 0.1);  // dust and filler in the coat
+    DrawPores(cv, LayerSeed(seed, 71), 14.0, 0.3, 0.08, 0.3, 0.3f);  // bubbles, pinholes
+    ForEachCell(cv.region, 18.0, 30.0, LayerSeed(seed, 72),
+                [&](CellRng& rng, double x0, double y0) {
+                  if (rng.Uniform() > 0.6) return;  // hairline scratches
+                  Stroke st;
+                  st.width = rng.Uniform(0.04, 0.12);
+                  st.Make(rng, x0 + rng.Uniform(0, 18.0), y0 + rng.Uniform(0, 18.0),
+                          rng.Uniform(0, 2 * M_PI), rng.Uniform(5.0, 30.0), 0.15);
+                  DrawStroke(cv, st, 0.75f, 0.0f, 2, static_cast<float>(rng.Uniform(0.04, 0.12)));
+                });
     return;
   }
   const uint32_t s1 = Seed32(seed, 1), s2 = Seed32(seed, 2);
@@ -941,13 +958,19 @@ void LowFrequencyBase(Surface surface, uint64_t seed, const View& cview, cv::Mat
   const uint32_t s = Seed32(seed, 3);
   switch (surface) {
     case Surface::kAsphalt:
-      ForEachPixel(cview, [&](double x, double y, size_t i) { a[i] = 0.05f * Fbm(x / 25.0, y / 25.0, s, 3); });
+      ForEachPixel(cview, [&](double x, double y, size_t i) {
+        a[i] = 0.05f * Fbm(x / 25.0, y / 25.0, s, 3);
+      });
       break;
     case Surface::kConcrete:
-      ForEachPixel(cview, [&](double x, double y, size_t i) { a[i] = 0.06f * Fbm(x / 30.0, y / 30.0, s, 3); });
+      ForEachPixel(cview, [&](double x, double y, size_t i) {
+        a[i] = 0.06f * Fbm(x / 30.0, y / 30.0, s, 3);
+      });
       break;
     case Surface::kCarpet:
-      ForEachPixel(cview, [&](double x, double y, size_t i) { a[i] = 0.08f * Fbm(x / 12.0, y / 12.0, s, 3); });
+      ForEachPixel(cview, [&](double x, double y, size_t i) {
+        a[i] = 0.08f * Fbm(x / 12.0, y / 12.0, s, 3);
+      });
       break;
     case Surface::kSmoothConcrete:  // trowel swirls: long faint bands of burnish
       ForEachPixel(cview, [&](double x, double y, size_t i) {
@@ -955,10 +978,14 @@ void LowFrequencyBase(Surface surface, uint64_t seed, const View& cview, cv::Mat
       });
       break;
     case Surface::kEpoxy:  // roller marks
-      ForEachPixel(cview, [&](double x, double y, size_t i) { a[i] = 0.01f * Fbm(x / 150.0, y / 25.0, s, 2); });
+      ForEachPixel(cview, [&](double x, double y, size_t i) {
+        a[i] = 0.01f * Fbm(x / 150.0, y / 25.0, s, 2);
+      });
       break;
     case Surface::kLaminate:  // grain distortion (mm), stretched along the planks
-      ForEachPixel(cview, [&](double x, double y, size_t i) { a[i] = 6.0f * Fbm(x / 80.0, y / 10.0, s, 2); });
+      ForEachPixel(cview, [&](double x, double y, size_t i) {
+        a[i] = 6.0f * Fbm(x / 80.0, y / 10.0, s, 2);
+      });
       break;
     case Surface::kFlat:
     case Surface::kPhoto:
@@ -969,10 +996,11 @@ void LowFrequencyBase(Surface surface, uint64_t seed, const View& cview, cv::Mat
 void DrawMarkers(Canvas& cv, const std::vector<FloorMarker>& markers) {
   for (const auto& mk : markers) {
     const double r = mk.radius * 1000.0;
-    ForEachPixelNear(cv.region, mk.x * 1000.0, mk.y * 1000.0, 2.0 * r, [&](float dx, float dy, size_t idx) {
-      cv.value[idx] = dx * dx + dy * dy < r * r ? 1.0f : 0.0f;
-      cv.height[idx] = 0.0f;  // a flat printed disk
-    });
+    ForEachPixelNear(cv.region, mk.x * 1000.0, mk.y * 1000.0, 2.0 * r,
+                     [&](float dx, float dy, size_t idx) {
+                       cv.value[idx] = dx * dx + dy * dy < r * r ? 1.0f : 0.0f;
+                       cv.height[idx] = 0.0f;  // a flat printed disk
+                     });
   }
 }
 
@@ -1007,10 +1035,13 @@ void ShadeRelief(const View& v, const float* height, const FloorState& st, float
 
 namespace {
 // The surfaces a dataset can be rendered from by name (a photo floor is made from photographs).
-constexpr EnumName<Surface> kSurfaces[] = {
-    {"asphalt", Surface::kAsphalt}, {"concrete", Surface::kConcrete}, {"carpet", Surface::kCarpet},
-    {"laminate", Surface::kLaminate}, {"smooth_concrete", Surface::kSmoothConcrete},
-    {"epoxy", Surface::kEpoxy}, {"flat", Surface::kFlat}};
+constexpr EnumName<Surface> kSurfaces[] = {{"asphalt", Surface::kAsphalt},
+                                           {"concrete", Surface::kConcrete},
+                                           {"carpet", Surface::kCarpet},
+                                           {"laminate", Surface::kLaminate},
+                                           {"smooth_concrete", Surface::kSmoothConcrete},
+                                           {"epoxy", Surface::kEpoxy},
+                                           {"flat", Surface::kFlat}};
 }  // namespace
 
 Surface ParseSurface(const std::string& name) { return ParseEnumName(name, "surface", kSurfaces); }
@@ -1026,17 +1057,23 @@ std::vector<std::string> SurfaceNames() {
 }
 
 Floor::Floor(Surface surface, uint64_t seed)
-    : surface_(surface), seed_(Mix64(seed + 0x5eed)), regions_(std::make_shared<std::vector<PhotoRegion>>()) {
-  if (surface == Surface::kPhoto) throw std::invalid_argument("Floor: a photo floor needs its photographs");
+    : surface_(surface),
+      seed_(Mix64(seed + 0x5eed)),
+      regions_(std::make_shared<std::vector<PhotoRegion>>()) {
+  if (surface == Surface::kPhoto)
+    throw std::invalid_argument("Floor: a photo floor needs its photographs");
 }
 
 Floor::Floor(std::vector<PhotoRegion> regions, uint64_t seed)
-    : surface_(Surface::kPhoto), seed_(Mix64(seed + 0x5eed)),
+    : surface_(Surface::kPhoto),
+      seed_(Mix64(seed + 0x5eed)),
       regions_(std::make_shared<std::vector<PhotoRegion>>(std::move(regions))) {
-  if (regions_->empty()) throw std::invalid_argument("Floor: a photo floor needs at least one photograph");
+  if (regions_->empty())
+    throw std::invalid_argument("Floor: a photo floor needs at least one photograph");
   for (const auto& r : *regions_) {
     if (r.reflectance.empty() || r.reflectance.type() != CV_32F || !(r.meters_per_pixel > 0)) {
-      throw std::invalid_argument("Floor: photo region " + r.path.string() + " has no image or scale");
+      throw std::invalid_argument("Floor: photo region " + r.path.string() +
+                                  " has no image or scale");
     }
   }
 }
@@ -1056,17 +1093,21 @@ PhotoRegion LoadPhotoRegion(const std::filesystem::path& path, double meters_per
     img.release();
   }
   if (img.empty()) {
-    throw std::invalid_argument("photo " + path.string() +
-                                ": not an image, or a format that cannot be decoded (use PNG, JPEG, "
-                                "TIFF or BMP)");
+    throw std::invalid_argument(
+        "photo " + path.string() +
+        ": not an image, or a format that cannot be decoded (use PNG, JPEG, "
+        "TIFF or BMP)");
   }
   PhotoRegion r;
   r.path = path;
   r.label = path.stem().string();
   r.meters_per_pixel = meters_per_pixel;
-  const double scale = img.depth() == CV_16U ? 1.0 / 65535.0 : img.depth() == CV_8U ? 1.0 / 255.0 : 0.0;
+  const double scale = img.depth() == CV_16U  ? 1.0 / 65535.0
+                       : img.depth() == CV_8U ? 1.0 / 255.0
+                                              : 0.0;
   if (scale == 0.0) {
-    throw std::invalid_argument("photo " + path.string() + ": unsupported pixel depth (8 or 16 bits)");
+    throw std::invalid_argument("photo " + path.string() +
+                                ": unsupported pixel depth (8 or 16 bits)");
   }
   img.convertTo(r.reflectance, CV_32F, scale);
   return r;
@@ -1145,19 +1186,33 @@ void Floor::Render(const Homography& floor_from_image, int width, int height, in
       const int th = phase == Phase::kBase ? fine.h : kTile;
       for (int j0 = 0; j0 < fine.h; j0 += th) {
         for (int i0 = 0; i0 < fine.w; i0 += tw) {
-          canvas.region = fine.Tile(i0, j0, std::min(fine.w, i0 + tw) - 1,
-                                    std::min(fine.h, j0 + th) - 1);
+          canvas.region =
+              fine.Tile(i0, j0, std::min(fine.w, i0 + tw) - 1, std::min(fine.h, j0 + th) - 1);
           switch (surface_) {
-            case Surface::kAsphalt: RenderAsphalt(canvas, seed_, phase); break;
-            case Surface::kConcrete: RenderConcrete(canvas, seed_, phase); break;
-            case Surface::kCarpet: RenderCarpet(canvas, seed_, phase); break;
-            case Surface::kLaminate: RenderLaminate(canvas, seed_, phase, dist); break;
-            case Surface::kSmoothConcrete: RenderSmoothConcrete(canvas, seed_, phase); break;
-            case Surface::kEpoxy: RenderEpoxy(canvas, seed_, phase); break;
+            case Surface::kAsphalt:
+              RenderAsphalt(canvas, seed_, phase);
+              break;
+            case Surface::kConcrete:
+              RenderConcrete(canvas, seed_, phase);
+              break;
+            case Surface::kCarpet:
+              RenderCarpet(canvas, seed_, phase);
+              break;
+            case Surface::kLaminate:
+              RenderLaminate(canvas, seed_, phase, dist);
+              break;
+            case Surface::kSmoothConcrete:
+              RenderSmoothConcrete(canvas, seed_, phase);
+              break;
+            case Surface::kEpoxy:
+              RenderEpoxy(canvas, seed_, phase);
+              break;
             case Surface::kFlat:
               if (phase == Phase::kBase) fine_img.setTo(0.5);
               break;
-            case Surface::kPhoto: RenderPhoto(canvas, region, phase); break;
+            case Surface::kPhoto:
+              RenderPhoto(canvas, region, phase);
+              break;
           }
           if (phase == Phase::kElements) {
             if (surface_ != Surface::kFlat) DrawWearFine(canvas, seed_, state);
@@ -1168,7 +1223,8 @@ void Floor::Render(const Homography& floor_from_image, int width, int height, in
     }
     const bool relief = surface_ == Surface::kAsphalt || surface_ == Surface::kConcrete ||
                         surface_ == Surface::kSmoothConcrete || surface_ == Surface::kEpoxy;
-    if (relief && state.directional > 0.0) ShadeRelief(fine, canvas.height.data(), state, fine_img.ptr<float>());
+    if (relief && state.directional > 0.0)
+      ShadeRelief(fine, canvas.height.data(), state, fine_img.ptr<float>());
   }
   if (supersample > 1) {
     cv::resize(fine_img, *out, cv::Size(width, height), 0, 0, cv::INTER_AREA);

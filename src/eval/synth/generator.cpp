@@ -62,8 +62,8 @@ std::string QuerySplitName(int day) {
 }
 
 struct Layout {
-  double fw, fh;    // footprint, metres
-  double sx, sy;    // lawnmower steps, metres
+  double fw, fh;  // footprint, metres
+  double sx, sy;  // lawnmower steps, metres
   int cols, rows;
 };
 
@@ -126,7 +126,10 @@ double SquareAreaForImages(const SynthOptions& o, int images) {
   for (int it = 0; it < 100; ++it) {
     const double mid = std::sqrt(lo * hi);
     const Layout l = LawnmowerLayout(o, mid, mid);
-    if (static_cast<double>(l.cols) * l.rows < images) lo = mid; else hi = mid;
+    if (static_cast<double>(l.cols) * l.rows < images)
+      lo = mid;
+    else
+      hi = mid;
   }
   return hi;
 }
@@ -190,21 +193,24 @@ std::string SafeLabel(const std::string& s) {
 }  // namespace
 
 std::vector<PhotoRegion> LoadPhotoFloor(const SynthOptions& o) {
-  const double mpp = o.photo_meters_per_pixel > 0 ? o.photo_meters_per_pixel : o.camera.meters_per_pixel;
-  const double fw = o.camera.width * o.camera.meters_per_pixel, fh = o.camera.height * o.camera.meters_per_pixel;
+  const double mpp =
+      o.photo_meters_per_pixel > 0 ? o.photo_meters_per_pixel : o.camera.meters_per_pixel;
+  const double fw = o.camera.width * o.camera.meters_per_pixel,
+               fh = o.camera.height * o.camera.meters_per_pixel;
   std::vector<PhotoRegion> regions;
   double cursor = 0.0;
   std::map<std::string, int> used;
   auto add = [&](const std::filesystem::path& path) {
     PhotoRegion r = LoadPhotoRegion(path, mpp);
     double a, b, c, d;
-    if (!CentreBox(r, fw, fh, 0.0, &a, &b, &c, &d) && !CentreBox(r, fw, fh, M_PI / 2, &a, &b, &c, &d)) {
+    if (!CentreBox(r, fw, fh, 0.0, &a, &b, &c, &d) &&
+        !CentreBox(r, fw, fh, M_PI / 2, &a, &b, &c, &d)) {
       char buf[256];
       std::snprintf(buf, sizeof(buf),
                     ": the photo is %d x %d px (%.1f x %.1f mm at %.3f mm/px), smaller than one "
                     "image (%.1f x %.1f mm, plus %.0f%% for the camera's scale jitter)",
-                    r.reflectance.cols, r.reflectance.rows, r.width() * 1e3, r.height() * 1e3, mpp * 1e3,
-                    fw * 1e3, fh * 1e3, (kPhotoMargin - 1.0) * 100);
+                    r.reflectance.cols, r.reflectance.rows, r.width() * 1e3, r.height() * 1e3,
+                    mpp * 1e3, fw * 1e3, fh * 1e3, (kPhotoMargin - 1.0) * 100);
       throw std::invalid_argument("photo " + path.string() + buf);
     }
     r.label = SafeLabel(r.label);
@@ -233,7 +239,8 @@ DatasetPlan PlanPhotoDataset(const SynthOptions& o, const std::vector<PhotoRegio
   plan.info.surface = "photo: " + labels;
   plan.info.name = "photo_floor_seed" + std::to_string(o.seed);
   plan.info.geometry = o.camera.Geometry();
-  const double fw = o.camera.width * o.camera.meters_per_pixel, fh = o.camera.height * o.camera.meters_per_pixel;
+  const double fw = o.camera.width * o.camera.meters_per_pixel,
+               fh = o.camera.height * o.camera.meters_per_pixel;
   // Random pose inside region r at any heading its footprint fits.
   auto random_pose = [&](CellRng& rng, const PhotoRegion& r) {
     double x0, x1, y0, y1;
@@ -356,8 +363,8 @@ DatasetPlan PlanDataset(const SynthOptions& o) {
       PlannedImage im;
       im.split = "train";
       im.name = ImageName("train", i);
-      im.pose = Rounded(RandomPose(rng, x0 + 0.5 * l.fw, x0 + side - 0.5 * l.fw, 0.5 * l.fh,
-                                   side - 0.5 * l.fh));
+      im.pose = Rounded(
+          RandomPose(rng, x0 + 0.5 * l.fw, x0 + side - 0.5 * l.fw, 0.5 * l.fh, side - 0.5 * l.fh));
       im.day = 0.0;
       im.visit = kTrainVisit;
       names.push_back(im.name);
@@ -410,8 +417,14 @@ DatasetPlan PlanDataset(const SynthOptions& o) {
           const double step = 0.03;
           double nx = walker.x + step * std::cos(walker.theta);
           double ny = walker.y + step * std::sin(walker.theta);
-          if (nx < qx0 || nx > qx1) { walker.theta = M_PI - walker.theta; nx = std::clamp(nx, qx0, qx1); }
-          if (ny < qy0 || ny > qy1) { walker.theta = -walker.theta; ny = std::clamp(ny, qy0, qy1); }
+          if (nx < qx0 || nx > qx1) {
+            walker.theta = M_PI - walker.theta;
+            nx = std::clamp(nx, qx0, qx1);
+          }
+          if (ny < qy0 || ny > qy1) {
+            walker.theta = -walker.theta;
+            ny = std::clamp(ny, qy0, qy1);
+          }
           walker.x = nx;
           walker.y = ny;
         }
@@ -513,15 +526,14 @@ SynthSummary GenerateDataset(const SynthOptions& o, const fs::path& out, bool fo
     WriteDatasetFiles(staging, plan.info, poses, plan.splits);
     // Provenance: how this dataset was made (an extra file the format allows).
     std::ostringstream prov;
-    prov << "# gtbow synth parameters\nsurface: " << (regions.empty() ? SurfaceName(o.surface) : "photo")
-         << "\nseed: " << o.seed
+    prov << "# gtbow synth parameters\nsurface: "
+         << (regions.empty() ? SurfaceName(o.surface) : "photo") << "\nseed: " << o.seed
          << "\narea_width: " << o.area_width << "\narea_height: " << o.area_height
          << "\noverlap: " << o.overlap << "\ntrain_images: " << o.train_images
          << "\nqueries_per_split: " << o.queries_per_split << "\naging: " << o.aging
          << "\nsupersample: " << o.camera.supersample
          << "\nsensor_effects: " << (o.camera.sensor_effects ? "true" : "false")
-         << "\nrenderer_version: " << kRendererVersion
-         << "\nmotion_blur: " << o.camera.motion_blur
+         << "\nrenderer_version: " << kRendererVersion << "\nmotion_blur: " << o.camera.motion_blur
          << "\nlight_directional: " << o.camera.light_directional
          << "\nlight_azimuth: " << o.camera.light_azimuth
          << "\nlight_elevation: " << o.camera.light_elevation << "\n";
@@ -532,12 +544,14 @@ SynthSummary GenerateDataset(const SynthOptions& o, const fs::path& out, bool fo
         const auto& r = regions[i];
         const std::string bytes = ReadFile(r.path);
         char line[512];
-        std::snprintf(line, sizeof(line),
-                      "  - {file: \"%s\", use: %s, label: %s, checksum: %016llx, meters_per_pixel: %.9g, "
-                      "x0: %.6f, y0: %.6f, width: %.6f, height: %.6f}\n",
-                      r.path.filename().string().c_str(), i < o.photos.size() ? "map" : "train",
-                      r.label.c_str(), static_cast<unsigned long long>(Checksum64(bytes.data(), bytes.size())),
-                      r.meters_per_pixel, r.x0, r.y0, r.width(), r.height());
+        std::snprintf(
+            line, sizeof(line),
+            "  - {file: \"%s\", use: %s, label: %s, checksum: %016llx, meters_per_pixel: %.9g, "
+            "x0: %.6f, y0: %.6f, width: %.6f, height: %.6f}\n",
+            r.path.filename().string().c_str(), i < o.photos.size() ? "map" : "train",
+            r.label.c_str(),
+            static_cast<unsigned long long>(Checksum64(bytes.data(), bytes.size())),
+            r.meters_per_pixel, r.x0, r.y0, r.width(), r.height());
         prov << line;
       }
     }

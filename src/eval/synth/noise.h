@@ -24,12 +24,14 @@ inline uint64_t HashCell(int64_t ix, int64_t iy, uint64_t seed) {
                             static_cast<uint64_t>(iy) * 0xC2B2AE3D27D4EB4FULL));
 }
 
-inline uint64_t HashCombine(uint64_t a, uint64_t b) { return Mix64(a ^ (b + 0x9E3779B97F4A7C15ULL)); }
+inline uint64_t HashCombine(uint64_t a, uint64_t b) {
+  return Mix64(a ^ (b + 0x9E3779B97F4A7C15ULL));
+}
 
 // Cheap 32-bit lattice hash for per-pixel value noise; returns a value in [-1, 1).
 inline float LatticeValue(int32_t ix, int32_t iy, uint32_t seed) {
-  uint32_t h = seed ^ (static_cast<uint32_t>(ix) * 0x8da6b343U) ^
-               (static_cast<uint32_t>(iy) * 0xd8163841U);
+  uint32_t h =
+      seed ^ (static_cast<uint32_t>(ix) * 0x8da6b343U) ^ (static_cast<uint32_t>(iy) * 0xd8163841U);
   h ^= h >> 15;
   h *= 0x2c1b3c6dU;
   h ^= h >> 12;

@@ -15,25 +15,25 @@ namespace gtbow {
 namespace synth {
 
 struct CameraOptions {
-  int width = 640;                  // image width, pixels
-  int height = 480;                 // image height, pixels
+  int width = 640;                    // image width, pixels
+  int height = 480;                   // image height, pixels
   double meters_per_pixel = 0.00025;  // ground sampling distance, metres per pixel
-  int supersample = 2;              // anti-aliasing: samples per pixel along each axis (1-4)
-  bool sensor_effects = true;       // false renders the ideal image (no noise, blur, jitter)
-  double noise_sigma = 0.01;        // read noise, fraction of full scale
-  double shot_noise = 0.0004;       // photon noise variance per unit brightness
-  double defocus_sigma = 0.55;      // mean Gaussian defocus, pixels
-  double vignetting = 0.18;         // brightness lost at the image corners, fraction
-  double exposure_jitter = 0.06;    // standard deviation of the per-image gain
-  double scale_jitter = 0.007;      // standard deviation of the height-jitter scale change
-  double tilt_jitter = 0.004;       // standard deviation of the tilt scale change at the edge
-  double max_scale_change = 0.02;   // clamp on every scale change, fraction
-  double motion_blur = 1.5;         // longest motion blur along the image u axis, pixels
+  int supersample = 2;                // anti-aliasing: samples per pixel along each axis (1-4)
+  bool sensor_effects = true;         // false renders the ideal image (no noise, blur, jitter)
+  double noise_sigma = 0.01;          // read noise, fraction of full scale
+  double shot_noise = 0.0004;         // photon noise variance per unit brightness
+  double defocus_sigma = 0.55;        // mean Gaussian defocus, pixels
+  double vignetting = 0.18;           // brightness lost at the image corners, fraction
+  double exposure_jitter = 0.06;      // standard deviation of the per-image gain
+  double scale_jitter = 0.007;        // standard deviation of the height-jitter scale change
+  double tilt_jitter = 0.004;         // standard deviation of the tilt scale change at the edge
+  double max_scale_change = 0.02;     // clamp on every scale change, fraction
+  double motion_blur = 1.5;           // longest motion blur along the image u axis, pixels
   // The light mounted on the camera: it turns with the robot, so relief is shaded differently
   // when a place is seen at another heading (FloorState).
-  double light_directional = 0.5;   // share of directional light, rest ambient [0, 1]
-  double light_azimuth = 0.0;       // where the light comes from, radians from image +u
-  double light_elevation = 0.7;     // radians above the floor (0, pi/2]
+  double light_directional = 0.5;  // share of directional light, rest ambient [0, 1]
+  double light_azimuth = 0.0;      // where the light comes from, radians from image +u
+  double light_elevation = 0.7;    // radians above the floor (0, pi/2]
 
   // Throws std::invalid_argument naming the first bad field.
   void Check() const;
@@ -42,10 +42,10 @@ struct CameraOptions {
 
 // Illumination of one visit (a recording session).
 struct Lighting {
-  double gain = 1.0;        // overall brightness factor
-  double gradient_u = 0.0;  // brightness change across the image width, fraction
-  double gradient_v = 0.0;  // brightness change across the image height, fraction
-  double gamma = 1.0;       // tone curve of this session's exposure settings (> 0)
+  double gain = 1.0;               // overall brightness factor
+  double gradient_u = 0.0;         // brightness change across the image width, fraction
+  double gradient_v = 0.0;         // brightness change across the image height, fraction
+  double gamma = 1.0;              // tone curve of this session's exposure settings (> 0)
   double directional_scale = 1.0;  // directional light relative to CameraOptions (ambient
                                    // light leaking in changes the mix), >= 0
   double azimuth_offset = 0.0;     // light azimuth relative to CameraOptions, radians

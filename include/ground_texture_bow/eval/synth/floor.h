@@ -21,7 +21,16 @@ namespace synth {
 // fine sand, rare pinholes, trowel swirls) and kEpoxy (a painted or epoxy coating: orange peel,
 // roller marks, dust specks, hairline scratches). kPhoto: the floor is made of photographs
 // (PhotoRegion), not procedural.
-enum class Surface { kAsphalt, kConcrete, kCarpet, kLaminate, kFlat, kSmoothConcrete, kEpoxy, kPhoto };
+enum class Surface {
+  kAsphalt,
+  kConcrete,
+  kCarpet,
+  kLaminate,
+  kFlat,
+  kSmoothConcrete,
+  kEpoxy,
+  kPhoto
+};
 
 // Parses "asphalt", "concrete", "carpet", "laminate", "smooth_concrete", "epoxy" or "flat";
 // throws std::invalid_argument listing the valid names otherwise. ("photo" is not parsed: a
@@ -44,9 +53,9 @@ struct FloorMarker {
 
 // How the floor looks at one visit.
 struct FloorState {
-  double day = 0.0;          // age of the floor since mapping, days (>= 0)
-  uint64_t visit_seed = 0;   // randomness of this visit: transient debris
-  double aging = 1.0;        // multiplier on the rate of ageing (0 disables wear)
+  double day = 0.0;         // age of the floor since mapping, days (>= 0)
+  uint64_t visit_seed = 0;  // randomness of this visit: transient debris
+  double aging = 1.0;       // multiplier on the rate of ageing (0 disables wear)
   std::vector<FloorMarker> markers;
   // Relief shading. The floor has a height field (stones stand proud of the binder, pores and
   // pits sink into it, debris lies on top). A directional light shades it Lambertian-style:
@@ -69,8 +78,8 @@ struct PhotoRegion {
   double meters_per_pixel = 0;  // ground size of a photo pixel, metres
   double x0 = 0, y0 = 0;        // floor position of the photo's top-left corner, metres
   cv::Mat reflectance;          // CV_32F grey values in [0, 1]
-  double width() const { return reflectance.cols * meters_per_pixel; }    // metres
-  double height() const { return reflectance.rows * meters_per_pixel; }   // metres
+  double width() const { return reflectance.cols * meters_per_pixel; }   // metres
+  double height() const { return reflectance.rows * meters_per_pixel; }  // metres
 };
 
 // Reads a photograph (PNG, JPEG, TIFF, BMP, ...: what OpenCV decodes; 8- or 16-bit, grey or

@@ -23,19 +23,19 @@ constexpr int kRendererVersion = 2;
 
 struct SynthOptions {
   Surface surface = Surface::kAsphalt;  // floor material
-  uint64_t seed = 1;                     // same options and seed give byte-identical output
-  double area_width = 1.0;               // database area along floor x, metres (> 0)
-  double area_height = 1.0;              // database area along floor y, metres (> 0)
-  double overlap = 0.6;                  // overlap of lawnmower neighbours, fraction [0, 0.95]
-  int train_images = 200;                // images of the separate training area (>= 0)
-  int queries_per_split = 100;           // images per query split (>= 0)
+  uint64_t seed = 1;                    // same options and seed give byte-identical output
+  double area_width = 1.0;              // database area along floor x, metres (> 0)
+  double area_height = 1.0;             // database area along floor y, metres (> 0)
+  double overlap = 0.6;                 // overlap of lawnmower neighbours, fraction [0, 0.95]
+  int train_images = 200;               // images of the separate training area (>= 0)
+  int queries_per_split = 100;          // images per query split (>= 0)
   std::vector<int> query_days = {0, 30, 90, 180};  // one query split per day, days >= 0
-  double path_fraction = 0.5;            // share of queries taken along paths, rest random
-  double aging = 1.0;                    // rate of floor wear, 1 = default, 0 = none
-  double position_jitter = 0.002;        // database pose noise around the path, metres (sd)
-  double heading_jitter = 0.02;          // database heading noise, radians (sd)
-  CameraOptions camera;                  // image size, scale and sensor effects
-  int threads = 0;                       // worker threads, 0 = all cores
+  double path_fraction = 0.5;      // share of queries taken along paths, rest random
+  double aging = 1.0;              // rate of floor wear, 1 = default, 0 = none
+  double position_jitter = 0.002;  // database pose noise around the path, metres (sd)
+  double heading_jitter = 0.02;    // database heading noise, radians (sd)
+  CameraOptions camera;            // image size, scale and sensor effects
+  int threads = 0;                 // worker threads, 0 = all cores
   // Render only these kinds of split ("train", "database", "queries"); empty = all. Poses
   // are those of the full dataset, so partial datasets of one seed fit together.
   std::vector<std::string> only;
@@ -47,7 +47,7 @@ struct SynthOptions {
   // stains, tyre marks, scuffs, debris) applies on top of the photos; relief shading does not.
   std::vector<std::filesystem::path> photos;
   std::vector<std::filesystem::path> train_photos;
-  double photo_meters_per_pixel = 0.0;   // ground size of a photo pixel, metres; 0 = the camera's
+  double photo_meters_per_pixel = 0.0;  // ground size of a photo pixel, metres; 0 = the camera's
 
   // Throws std::invalid_argument naming the first bad field.
   void Check() const;
@@ -59,11 +59,11 @@ double SquareAreaForImages(const SynthOptions& options, int images);
 
 // One image to render.
 struct PlannedImage {
-  std::string name;   // file name under images/
-  std::string split;  // sequence it belongs to
-  Pose2D pose;        // exact ground truth
-  double day = 0.0;   // floor age when taken, days
-  uint64_t visit = 0; // recording session (debris and lighting)
+  std::string name;    // file name under images/
+  std::string split;   // sequence it belongs to
+  Pose2D pose;         // exact ground truth
+  double day = 0.0;    // floor age when taken, days
+  uint64_t visit = 0;  // recording session (debris and lighting)
 };
 
 struct DatasetPlan {
