@@ -18,6 +18,7 @@
 #include <thread>
 
 #include "commands.h"
+#include "eval_results.h"
 #include "ground_texture_bow/core/binary_io.h"
 #include "ground_texture_bow/core/config.h"
 #include "ground_texture_bow/core/database.h"
@@ -38,43 +39,6 @@ namespace tools {
 
 namespace {
 
-constexpr size_t kScalingQueries = 20;
-constexpr size_t kRecallN[] = {1, 2, 5, 10, 20, 50, 100};
-constexpr double kSuccessMeters = 0.0048;
-constexpr double kSuccessRadians = 1.5 * M_PI / 180.0;
-
-// The paper's Table I rows and the presets (under config/) that reproduce them.
-constexpr std::pair<const char*, const char*> kAblation[] = {
-    {"DBoW", "dbow_baseline.yaml"},
-    {"DBoW + SB", "ablation/dbow_sb.yaml"},
-    {"DBoW + AKM", "ablation/dbow_akm.yaml"},
-    {"DBoW + AKM + SA (r=3)", "ablation/dbow_akm_sa.yaml"},
-    {"DBoW + OV", "ablation/dbow_ov.yaml"},
-    {"Ours Fast", "fast.yaml"},
-    {"Ours", "high_accuracy.yaml"},
-};
-
-struct EvalArgs {
-  std::string dataset;
-  std::string vocab;
-  std::vector<std::string> presets;
-  std::string out = "gtbow_eval";
-  std::vector<std::string> query_splits;
-  size_t max_queries = 0;
-  size_t timing_queries = 100;
-  int candidates = 5;
-  int min_inliers = PoseOptions{}.min_inliers;
-  int threads = 0;
-  std::string cache = DefaultCacheDir().string();
-  bool no_cache = false;
-  bool no_plots = false;
-  bool ablation = false;
-  int words = 0;
-  std::string dump_rankings;
-  std::string dump_poses;
-  bool quiet = false;
-};
-
 // Age of a query split in days: dataset.yaml's query_days, else the digits of query_dayNNN.
 double SplitDay(const DatasetInfo& info, const std::string& split) {
   const auto it = info.query_days.find(split);
@@ -88,41 +52,6 @@ double SplitDay(const DatasetInfo& info, const std::string& split) {
   }
   return NAN;
 }
-
-struct SplitResult {
-  std::string name;
-  double day = NAN;
-  size_t queries = 0, counted = 0, no_relevant = 0;
-  double map = 0;
-  std::vector<double> recall;  // at kRecallN
-  Separation separation;
-  std::vector<double> rel_scores, irr_scores;
-  // Diagnostic: separation against false results with no overlap at all (near misses, 0-25%
-  // overlap, share real texture and bound the protocol's separation on dense maps).
-  std::vector<double> disjoint_scores;
-  Separation separation_disjoint;
-  size_t localized = 0;                 // within 4.8 mm and 1.5 degrees
-  size_t estimated = 0;                 // gave a pose at all
-  std::vector<double> err_mm, err_deg;  // of every estimate
-};
-
-struct ScalingPoint {
-  size_t images = 0;
-  TimingStats insert;  // over the last (up to) 1,000 insertions
-  TimingStats query;   // kScalingQueries queries with matches, top K
-};
-
-struct PresetResult {
-  std::vector<ScalingPoint> scaling;
-  std::string name, file;
-  std::string table_row;  // the paper's Table I row this preset reproduces (--ablation)
-  std::string vocab_desc;
-  std::vector<SplitResult> splits;
-  TimingStats extract, transform, insert, query, pose, total;
-  size_t timed = 0;
-  size_t db_images = 0;
-  RetrievalConfig config;
-};
 
 std::string PresetName(const std::string& file) {
   return file.empty() ? "high_accuracy (built-in defaults)" : fs::path(file).stem().string();
@@ -357,195 +286,6 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
   pr.pose = Summarise(po);
   pr.total = Summarise(to);
   return pr;
-}
-
-void WriteStat(Json& j, const std::string& key, const TimingStats& s) {
-  j.Key(key).Open('{');
-  j.Key("mean_ms")
-      .Num(s.mean)
-      .Key("sd_ms")
-      .Num(s.sd)
-      .Key("median_ms")
-      .Num(s.median)
-      .Key("p95_ms")
-      .Num(s.p95);
-  j.Close('}');
-}
-
-std::string ToJson(const EvalArgs& a, const Dataset& ds, const std::vector<PresetResult>& results) {
-  Json j;
-  j.Open('{');
-  j.Key("dataset").Open('{');
-  j.Key("path").Str(fs::absolute(a.dataset).string());
-  j.Key("name").Str(ds.info().name).Key("surface").Str(ds.info().surface);
-  j.Key("image_width")
-      .Int(ds.info().geometry.width)
-      .Key("image_height")
-      .Int(ds.info().geometry.height);
-  j.Key("meters_per_pixel").Num(ds.info().geometry.meters_per_pixel);
-  j.Close('}');
-  j.Key("protocol").Open('{');
-  j.Key("success_position_mm").Num(kSuccessMeters * 1000).Key("success_heading_deg").Num(1.5);
-  j.Key("recall_n").Open('[');
-  for (size_t n : kRecallN) j.Int(static_cast<long long>(n));
-  j.Close(']');
-  j.Key("localization_candidates").Int(a.candidates);
-  j.Close('}');
-  j.Key("presets").Open('[');
-  for (const auto& pr : results) {
-    j.Open('{');
-    j.Key("name").Str(pr.name).Key("file").Str(pr.file).Key("vocabulary").Str(pr.vocab_desc);
-    j.Key("table_i_row").Str(pr.table_row);
-    j.Key("configuration").Str(FormatRetrievalConfig(pr.config));
-    j.Key("database_images").Int(static_cast<long long>(pr.db_images));
-    j.Key("splits").Open('[');
-    for (const auto& s : pr.splits) {
-      j.Open('{');
-      j.Key("name").Str(s.name).Key("day").Num(s.day);
-      j.Key("queries").Int(static_cast<long long>(s.queries));
-      j.Key("queries_with_relevant").Int(static_cast<long long>(s.counted));
-      j.Key("queries_without_relevant").Int(static_cast<long long>(s.no_relevant));
-      j.Key("map_at_1000").Num(s.map);
-      j.Key("recall_at_n").Nums(s.recall);
-      j.Key("separation").Open('{').Key("threshold").Num(s.separation.threshold);
-      j.Key("kept_relevant").Num(s.separation.kept_relevant).Close('}');
-      j.Key("separation_vs_disjoint")
-          .Open('{')
-          .Key("threshold")
-          .Num(s.separation_disjoint.threshold);
-      j.Key("kept_relevant").Num(s.separation_disjoint.kept_relevant).Close('}');
-      j.Key("top10_scores_relevant").Nums(s.rel_scores);
-      j.Key("top10_scores_irrelevant").Nums(s.irr_scores);
-      j.Key("localization").Open('{');
-      j.Key("success_rate").Num(s.queries ? static_cast<double>(s.localized) / s.queries : NAN);
-      j.Key("correct").Int(static_cast<long long>(s.localized));
-      j.Key("estimated").Int(static_cast<long long>(s.estimated));
-      j.Key("position_error_mm").Nums(s.err_mm).Key("heading_error_deg").Nums(s.err_deg);
-      j.Close('}');
-      j.Close('}');
-    }
-    j.Close(']');
-    j.Key("timing").Open('{');
-    j.Key("queries").Int(static_cast<long long>(pr.timed));
-    WriteStat(j, "feature_extraction", pr.extract);
-    WriteStat(j, "bow_transform", pr.transform);
-    WriteStat(j, "database_insertion", pr.insert);
-    WriteStat(j, "database_query", pr.query);
-    WriteStat(j, "pose_estimation", pr.pose);
-    WriteStat(j, "end_to_end", pr.total);
-    j.Close('}');
-    j.Key("scaling").Open('[');
-    for (const auto& sp : pr.scaling) {
-      j.Open('{').Key("images").Int(static_cast<long long>(sp.images));
-      WriteStat(j, "insertion", sp.insert);
-      WriteStat(j, "query", sp.query);
-      j.Close('}');
-    }
-    j.Close(']');
-    j.Close('}');
-  }
-  j.Close(']');
-  j.Close('}');
-  return j.str();
-}
-
-double PaperSeparationFor(const RetrievalConfig& c) {
-  if (c.vocabulary.kind == VocabularyKind::kHkm) return kPaperSeparationDbow;
-  return c.bow.soft_assignment == 1 ? kPaperSeparationFast : kPaperSeparationHigh;
-}
-
-std::string ToMarkdown(const EvalArgs& a, const std::vector<PresetResult>& results) {
-  std::ostringstream md;
-  char b[512];
-  md << "# gtbow eval: " << a.dataset << "\n\n";
-  md << "Protocol: docs/DATASET_FORMAT.md. Localization verifies the top " << a.candidates
-     << " candidates; success is a position error of at most 4.8 mm and a heading error of at "
-        "most 1.5 degrees (no estimate counts as a failure). \"sep. vs disjoint\" is a "
-        "diagnostic: the separation when only false results that do not overlap the query at all "
-        "count as false (near misses with 1-24% overlap share real texture).\n\n";
-  if (!results.empty() && !results[0].table_row.empty()) {
-    md << "## Ablation (the paper's Table I)\n\nmAP@1000 per query split; the paper's column is "
-          "its HD Ground asphalt test set.\n\n| row | preset | paper mAP |";
-    for (const auto& s : results[0].splits) md << " " << s.name << " |";
-    md << "\n| --- | --- | --- |";
-    for (size_t k = 0; k < results[0].splits.size(); ++k) md << " --- |";
-    md << "\n";
-    for (const auto& pr : results) {
-      double paper = NAN;
-      for (const auto& r : kPaperAblation) {
-        if (pr.table_row == r.name) paper = r.map;
-      }
-      std::snprintf(b, sizeof(b), "| %s | %s | %.3f |", pr.table_row.c_str(), pr.name.c_str(),
-                    paper);
-      md << b;
-      for (const auto& s : pr.splits) {
-        std::snprintf(b, sizeof(b), " %.3f |", s.map);
-        md << b;
-      }
-      md << "\n";
-    }
-    md << "\n";
-  }
-  for (const auto& pr : results) {
-    md << "## " << pr.name << "\n\n";
-    md << "Database: " << pr.db_images << " images. Vocabulary: " << pr.vocab_desc << ".\n\n";
-    md << "| split | day | queries | mAP@1000 | R@1 | R@5 | R@10 | R@100 | separation (paper "
-       << std::fixed << std::setprecision(1) << 100 * PaperSeparationFor(pr.config)
-       << "%) | sep. vs disjoint | localized | median error |\n";
-    md << "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |\n";
-    for (const auto& s : pr.splits) {
-      std::vector<double> e = s.err_mm;
-      std::sort(e.begin(), e.end());
-      std::snprintf(
-          b, sizeof(b),
-          "| %s | %s | %zu | %.3f | %.3f | %.3f | %.3f | %.3f | %.1f%% | %.1f%% | %.1f%% | %s |\n",
-          s.name.c_str(),
-          std::isfinite(s.day) ? std::to_string(static_cast<int>(s.day)).c_str() : "-", s.counted,
-          s.map, s.recall[0], s.recall[2], s.recall[3], s.recall[6],
-          100 * s.separation.kept_relevant, 100 * s.separation_disjoint.kept_relevant,
-          s.queries ? 100.0 * s.localized / s.queries : 0.0,
-          e.empty() ? "-" : (std::to_string(e[e.size() / 2]).substr(0, 5) + " mm").c_str());
-      md << b;
-    }
-    const PaperTiming& p = PaperTimingFor(pr.config);
-    md << "\nTiming over " << pr.timed
-       << " random queries against the full database, one thread (ms; "
-       << "paper: " << p.name << ", i7-13700, 32,251 images):\n\n";
-    md << "| stage | paper mean ± sd | here mean ± sd | here median | here p95 |\n| --- | --- | "
-          "--- | --- | --- |\n";
-    auto row = [&](const char* name, const double* paper, const TimingStats& s) {
-      if (paper != nullptr) {
-        std::snprintf(b, sizeof(b), "| %s | %.1f ± %.1f | %.3f ± %.3f | %.3f | %.3f |\n", name,
-                      paper[0], paper[1], s.mean, s.sd, s.median, s.p95);
-      } else {
-        std::snprintf(b, sizeof(b), "| %s | - | %.3f ± %.3f | %.3f | %.3f |\n", name, s.mean, s.sd,
-                      s.median, s.p95);
-      }
-      md << b;
-    };
-    row("feature extraction", p.extract, pr.extract);
-    row("BoW transform", p.transform, pr.transform);
-    row("database insertion", p.insert, pr.insert);
-    row("database query", p.query, pr.query);
-    row("pose estimation", nullptr, pr.pose);
-    row("end to end (extraction, transform, query, pose)", nullptr, pr.total);
-    std::snprintf(b, sizeof(b),
-                  "\nEnd-to-end localization rate: %.1f Hz (median), paper: over 5 Hz.\n\n",
-                  pr.total.median > 0 ? 1000.0 / pr.total.median : 0.0);
-    md << b;
-    md << "Scaling (the paper's Fig. 3): insertion over the last 1,000 insertions, query over "
-       << kScalingQueries
-       << " queries, ms.\n\n| database images | insertion mean | insertion p95 | query median | "
-          "query p95 |\n"
-       << "| --- | --- | --- | --- | --- |\n";
-    for (const auto& sp : pr.scaling) {
-      std::snprintf(b, sizeof(b), "| %zu | %.3f | %.3f | %.3f | %.3f |\n", sp.images,
-                    sp.insert.mean, sp.insert.p95, sp.query.median, sp.query.p95);
-      md << b;
-    }
-    md << "\n";
-  }
-  return md.str();
 }
 
 void RunEval(const EvalArgs& a) {

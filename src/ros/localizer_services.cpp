@@ -1,0 +1,166 @@
+// The localizer's services (LocalizerServer::On<Service>), each through Serve; the topics, the
+// worker and the diagnostics are in localizer_server.cpp.
+#include <stdexcept>
+
+#include "ground_texture_bow/ros/conversions.h"
+#include "ground_texture_bow/ros/localizer_server.h"
+
+namespace gtbow_ros {
+
+using ground_texture_bow::Status;
+
+// ---------------------------------------------------------------------------------------------
+// Services: always return true; the outcome is in status (cartographer_ros's StatusResponse).
+
+template <typename Body>
+Status LocalizerServer::Serve(const char* name, bool any_error_is_input, Body&& body) {
+  try {
+    return body();
+  } catch (const std::out_of_range& e) {
+    return MakeStatus(Status::NOT_FOUND, e.what());
+  } catch (const std::invalid_argument& e) {
+    Reject(std::string(name) + ": " + e.what(), false);
+    return MakeStatus(Status::INVALID_ARGUMENT, e.what());
+  } catch (const std::exception& e) {
+    if (!any_error_is_input) return MakeStatus(Status::INTERNAL, e.what());
+    Reject(std::string(name) + ": " + e.what(), false);
+    return MakeStatus(Status::INVALID_ARGUMENT, e.what());
+  }
+}
+
+void LocalizerServer::ForgetMapState() {
+  std::lock_guard<std::mutex> lock(state_mutex_);
+  edges_.clear();
+  last_keyframe_pose_.reset();
+}
+
+bool LocalizerServer::OnQueryCandidates(ground_texture_bow::QueryCandidates::Request& req,
+                                        ground_texture_bow::QueryCandidates::Response& res) {
+  res.status = Serve("query_candidates", false, [&] {
+    const size_t k = req.k > 0 ? req.k : static_cast<size_t>(options_.core.localization.candidates);
+    std::vector<gtbow::Candidate> cands;
+    if (req.use_keyframe_id) {
+      cands = localizer_->QueryKeyframe(req.keyframe_id, k, req.verify);
+    } else {
+      cands = localizer_->Query(localizer_->Process(ToFloorImage(req.image)), k, req.verify);
+    }
+    for (const auto& c : cands) res.candidates.push_back(ToCandidateMsg(c));
+    return MakeStatus(Status::OK, std::to_string(cands.size()) + " candidates");
+  });
+  return true;
+}
+
+bool LocalizerServer::OnAddKeyframe(ground_texture_bow::AddKeyframe::Request& req,
+                                    ground_texture_bow::AddKeyframe::Response& res) {
+  res.status = Serve("add_keyframe", false, [&] {
+    if (mode_.load() == Mode::kLocalization) {
+      return MakeStatus(Status::FAILED_PRECONDITION,
+                        "localization mode: the map is read-only (set_mode first)");
+    }
+    std::optional<gtbow::Pose2D> pose;
+    if (req.has_pose) pose = FromPose2DMsg(req.pose);
+    const gtbow::ProcessedImage img = localizer_->Process(ToFloorImage(req.image));
+    res.id = localizer_->Add(img, ToNanoseconds(req.image.header.stamp), pose);
+    return MakeStatus(Status::OK, "keyframe " + std::to_string(res.id) + " with " +
+                                      std::to_string(img.features.size()) + " keypoints");
+  });
+  return true;
+}
+
+bool LocalizerServer::OnLocalize(ground_texture_bow::Localize::Request& req,
+                                 ground_texture_bow::Localize::Response& res) {
+  res.status = Serve("localize", false, [&] {
+    const gtbow::Localization fix =
+        localizer_->Localize(localizer_->Process(ToFloorImage(req.image)));
+    res.localized = fix.success;
+    if (!fix.success) return MakeStatus(Status::NOT_FOUND, fix.reason);
+    res.pose =
+        ToPoseWithCovariance(fix.estimate.floor_from_query, fix.estimate.covariance,
+                             req.image.header.stamp, options_.map_frame, options_.planar_variance);
+    res.keyframe_id = fix.image;
+    res.inliers = static_cast<uint32_t>(fix.estimate.inliers);
+    return MakeStatus(Status::OK, "localized against keyframe " + std::to_string(fix.image));
+  });
+  return true;
+}
+
+bool LocalizerServer::OnSaveMap(ground_texture_bow::SaveMap::Request& req,
+                                ground_texture_bow::SaveMap::Response& res) {
+  res.status = Serve("save_map", true, [&] {
+    if (mode_.load() == Mode::kLocalization) {
+      // Localization mode never writes a file (set_mode mapping or external to save).
+      return MakeStatus(
+          Status::FAILED_PRECONDITION,
+          "localization mode: the map is read-only and is not saved (set_mode first)");
+    }
+    if (req.path.empty()) throw std::invalid_argument("empty path");
+    localizer_->Save(req.path);
+    return MakeStatus(Status::OK,
+                      "saved " + std::to_string(localizer_->size()) + " keyframes to " + req.path);
+  });
+  return true;
+}
+
+bool LocalizerServer::OnLoadMap(ground_texture_bow::LoadMap::Request& req,
+                                ground_texture_bow::LoadMap::Response& res) {
+  res.status = Serve("load_map", true, [&] {
+    if (req.path.empty()) throw std::invalid_argument("empty path");
+    localizer_->Load(req.path);
+    ForgetMapState();
+    res.keyframes = static_cast<uint32_t>(localizer_->size());
+    return MakeStatus(Status::OK,
+                      "loaded " + std::to_string(res.keyframes) + " keyframes from " + req.path);
+  });
+  return true;
+}
+
+bool LocalizerServer::OnReset(ground_texture_bow::Reset::Request&,
+                              ground_texture_bow::Reset::Response& res) {
+  res.status = Serve("reset", false, [&] {
+    if (mode_.load() == Mode::kLocalization) {
+      return MakeStatus(Status::FAILED_PRECONDITION, "localization mode: the map is read-only");
+    }
+    localizer_->Reset();
+    ForgetMapState();
+    return MakeStatus(Status::OK, "map cleared");
+  });
+  return true;
+}
+
+bool LocalizerServer::OnGetInfo(ground_texture_bow::GetInfo::Request&,
+                                ground_texture_bow::GetInfo::Response& res) {
+  res.status = Serve("get_info", false, [&] {
+    res.mode = ModeName(mode_.load());
+    res.database_size = static_cast<uint32_t>(localizer_->size());
+    res.vocabulary_size = localizer_->vocabulary().size();
+    res.vocabulary_path = localizer_->vocabulary_path();
+    res.preset = options_.preset;
+    res.images_received = received_.load();
+    res.images_processed = processed_.load();
+    res.images_dropped = dropped_.load();
+    res.debug_images = debug_images_.load();
+    res.images_rejected = rejected_.load();
+    res.requests_rejected = rejected_requests_.load();
+    res.fixes = fixes_.load();
+    res.loop_closures = loop_closures_.load();
+    {
+      std::lock_guard<std::mutex> lock(state_mutex_);
+      res.localized = !last_fix_time_.isZero() &&
+                      (ros::Time::now() - last_fix_time_).toSec() <= options_.localized_timeout;
+    }
+    return MakeStatus(Status::OK, "");
+  });
+  return true;
+}
+
+bool LocalizerServer::OnSetMode(ground_texture_bow::SetMode::Request& req,
+                                ground_texture_bow::SetMode::Response& res) {
+  res.status = Serve("set_mode", true, [&] {
+    const Mode m = ParseMode(req.mode);
+    res.previous_mode = ModeName(mode_.exchange(m));
+    return MakeStatus(Status::OK, "mode " + req.mode);
+  });
+  return true;
+}
+
+}  // namespace gtbow_ros

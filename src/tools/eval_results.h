@@ -1,0 +1,96 @@
+// gtbow eval's results: what one preset measured on one dataset (eval_command.cpp measures,
+// eval_report.cpp writes results.json and summary.md).
+#pragma once
+
+#include <cmath>
+#include <string>
+#include <vector>
+
+#include "ground_texture_bow/core/config.h"
+#include "ground_texture_bow/core/pose.h"
+#include "ground_texture_bow/eval/dataset.h"
+#include "ground_texture_bow/eval/metrics.h"
+#include "image_source.h"
+#include "timing.h"
+
+namespace gtbow {
+namespace tools {
+
+inline constexpr size_t kScalingQueries = 20;
+inline constexpr size_t kRecallN[] = {1, 2, 5, 10, 20, 50, 100};
+inline constexpr double kSuccessMeters = 0.0048;
+inline constexpr double kSuccessRadians = 1.5 * M_PI / 180.0;
+
+// The paper's Table I rows and the presets (under config/) that reproduce them.
+inline constexpr std::pair<const char*, const char*> kAblation[] = {
+    {"DBoW", "dbow_baseline.yaml"},
+    {"DBoW + SB", "ablation/dbow_sb.yaml"},
+    {"DBoW + AKM", "ablation/dbow_akm.yaml"},
+    {"DBoW + AKM + SA (r=3)", "ablation/dbow_akm_sa.yaml"},
+    {"DBoW + OV", "ablation/dbow_ov.yaml"},
+    {"Ours Fast", "fast.yaml"},
+    {"Ours", "high_accuracy.yaml"},
+};
+
+struct EvalArgs {
+  std::string dataset;
+  std::string vocab;
+  std::vector<std::string> presets;
+  std::string out = "gtbow_eval";
+  std::vector<std::string> query_splits;
+  size_t max_queries = 0;
+  size_t timing_queries = 100;
+  int candidates = 5;
+  int min_inliers = PoseOptions{}.min_inliers;
+  int threads = 0;
+  std::string cache = DefaultCacheDir().string();
+  bool no_cache = false;
+  bool no_plots = false;
+  bool ablation = false;
+  int words = 0;
+  std::string dump_rankings;
+  std::string dump_poses;
+  bool quiet = false;
+};
+
+struct SplitResult {
+  std::string name;
+  double day = NAN;
+  size_t queries = 0, counted = 0, no_relevant = 0;
+  double map = 0;
+  std::vector<double> recall;  // at kRecallN
+  Separation separation;
+  std::vector<double> rel_scores, irr_scores;
+  // Diagnostic: separation against false results with no overlap at all (near misses, 0-25%
+  // overlap, share real texture and bound the protocol's separation on dense maps).
+  std::vector<double> disjoint_scores;
+  Separation separation_disjoint;
+  size_t localized = 0;                 // within 4.8 mm and 1.5 degrees
+  size_t estimated = 0;                 // gave a pose at all
+  std::vector<double> err_mm, err_deg;  // of every estimate
+};
+
+struct ScalingPoint {
+  size_t images = 0;
+  TimingStats insert;  // over the last (up to) 1,000 insertions
+  TimingStats query;   // kScalingQueries queries with matches, top K
+};
+
+struct PresetResult {
+  std::vector<ScalingPoint> scaling;
+  std::string name, file;
+  std::string table_row;  // the paper's Table I row this preset reproduces (--ablation)
+  std::string vocab_desc;
+  std::vector<SplitResult> splits;
+  TimingStats extract, transform, insert, query, pose, total;
+  size_t timed = 0;
+  size_t db_images = 0;
+  RetrievalConfig config;
+};
+
+// results.json: every number; summary.md: ours next to the paper's.
+std::string ToJson(const EvalArgs& a, const Dataset& ds, const std::vector<PresetResult>& results);
+std::string ToMarkdown(const EvalArgs& a, const std::vector<PresetResult>& results);
+
+}  // namespace tools
+}  // namespace gtbow
