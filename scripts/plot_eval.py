@@ -8,6 +8,9 @@ score_histograms.png  top-10 scores of true and false results with the 99% rejec
 localization.png      localization success per query day, per preset
 position_errors.png   distribution of position errors of the estimates
 scaling.png           insertion and query time against database size (the paper's Fig. 3)
+precision_recall.png  what a SLAM backend reads: precision against recall of the top-1 result
+                      accepted by BoW score (dashed) and of the published loop closure accepted
+                      by inliers (solid), one panel per split; R@100P in the legend
 """
 import json
 import math
@@ -123,6 +126,30 @@ def main():
         ax.grid(True, which="both", alpha=0.3)
     axes[1].legend(fontsize=8)
     save(fig, out, "scaling")
+
+    # Precision-recall of what a backend reads, one panel per split.
+    if all("backend" in s for p in presets for s in p["splits"]):
+        fig, axes = plt.subplots(rows, cols, figsize=(4.5 * cols, 3.6 * rows), squeeze=False)
+        for i, name in enumerate(splits):
+            ax = axes[i // cols][i % cols]
+            for k, p in enumerate(presets):
+                b = next(x for x in p["splits"] if x["name"] == name)["backend"]
+                color = "C%d" % k
+                for key, style, what in (("pr_verified", "-", "verified"), ("pr_bow_top1", "--", "BoW top-1")):
+                    c = b[key]
+                    r100 = b["recall_at_100_precision_" + ("verified" if key == "pr_verified" else "bow_top1")]
+                    ax.plot(c["recall"], c["precision"], style, color=color, drawstyle="steps-post",
+                            label="%s, %s (R@100P %.2f)" % (p["name"], what, r100))
+            ax.set_xlim(0, 1.02)
+            ax.set_ylim(0, 1.02)
+            ax.set_xlabel("recall")
+            ax.set_ylabel("precision")
+            ax.set_title(name)
+            ax.grid(True, alpha=0.3)
+            ax.legend(fontsize=6)
+        for j in range(len(splits), rows * cols):
+            axes[j // cols][j % cols].axis("off")
+        save(fig, out, "precision_recall")
 
 
 if __name__ == "__main__":

@@ -266,6 +266,17 @@ std::vector<PointMatch> MatchesOf(const QueryResult& result,
   return out;
 }
 
+PoseEstimate VerifyCandidate(const QueryResult& r, const BowVector& query, const MapAccess& map,
+                             const ImageGeometry& geometry, const PoseOptions& options,
+                             std::vector<Vec2>* inlier_pixels) {
+  const auto matches = MatchesOf(r, query.source, map.keypoints(r.image));
+  PoseEstimate est = EstimatePose(matches, map.pose(r.image), geometry, options);
+  if (est.success && inlier_pixels != nullptr) {
+    for (int i : est.inlier_indices) inlier_pixels->push_back(matches[i].query);
+  }
+  return est;
+}
+
 Localization VerifyCandidates(const std::vector<QueryResult>& results, const BowVector& query,
                               const MapAccess& map, const ImageGeometry& geometry,
                               const LocalizationOptions& o) {
@@ -285,14 +296,12 @@ Localization VerifyCandidates(const std::vector<QueryResult>& results, const Bow
     const QueryResult& r = results[rank];
     std::string why = map.unusable ? map.unusable(r.image) : std::string();
     if (why.empty()) {
-      const auto matches = MatchesOf(r, query.source, map.keypoints(r.image));
-      PoseEstimate est = EstimatePose(matches, map.pose(r.image), geometry, o.pose);
+      PoseEstimate est = VerifyCandidate(r, query, map, geometry, o.pose, &loc.inlier_pixels);
       if (est.success) {
         loc.success = true;
         loc.image = r.image;
         loc.rank = static_cast<int>(rank);
         loc.score = r.score;
-        for (int i : est.inlier_indices) loc.inlier_pixels.push_back(matches[i].query);
         loc.estimate = std::move(est);
         return loc;
       }

@@ -46,4 +46,24 @@ Separation ScoreSeparation(const std::vector<double>& relevant_scores,
   return s;
 }
 
+PrecisionRecall PrecisionRecallCurve(std::vector<RankedAnswer> answers, size_t positives) {
+  PrecisionRecall pr;
+  std::sort(answers.begin(), answers.end(),
+            [](const RankedAnswer& a, const RankedAnswer& b) { return a.evidence > b.evidence; });
+  const double denominator = static_cast<double>(std::max<size_t>(1, positives));
+  size_t right = 0, wrong = 0;
+  for (size_t i = 0; i < answers.size();) {
+    size_t j = i;
+    for (; j < answers.size() && answers[j].evidence == answers[i].evidence; ++j) {
+      (answers[j].correct ? right : wrong) += 1;
+    }
+    pr.evidence.push_back(answers[i].evidence);
+    pr.precision.push_back(static_cast<double>(right) / static_cast<double>(right + wrong));
+    pr.recall.push_back(static_cast<double>(right) / denominator);
+    if (wrong == 0) pr.recall_at_full_precision = pr.recall.back();
+    i = j;
+  }
+  return pr;
+}
+
 }  // namespace gtbow

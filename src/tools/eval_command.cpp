@@ -170,6 +170,7 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
       std::vector<QueryResult> ranking;
       Localization loc;
       Pose2D truth;
+      size_t verified = 0, wrong = 0;  // over all top-K candidates
     };
     std::vector<PerQuery> per(q_src.size());
     ProgressBar bar("queries " + split, q_src.size(), !a.quiet);
@@ -179,7 +180,25 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
       size_t num_rel = 0;
       for (const auto& dp : db_pose) num_rel += IsRelevant(p.truth, dp, geo) ? 1 : 0;
       p.ranking = db.Query(q_vecs[qi], 1000, false);
-      p.loc = Localize(db, q_vecs[qi], map, geo, lo);
+      // Localization as the node does it (the first candidate that verifies), then every
+      // later candidate of the top K verified too, to count wrong poses among all of them.
+      const auto candidates = db.Query(q_vecs[qi], static_cast<size_t>(lo.candidates), true);
+      p.loc = VerifyCandidates(candidates, q_vecs[qi], map, geo, lo);
+      auto wrong_pose = [&](const Pose2D& e) {
+        return std::hypot(e.x - p.truth.x, e.y - p.truth.y) > kSuccessMeters ||
+               std::abs(WrapAngle(e.theta - p.truth.theta)) > kSuccessRadians;
+      };
+      if (p.loc.success) {
+        ++p.verified;
+        p.wrong += wrong_pose(p.loc.estimate.floor_from_query) ? 1 : 0;
+        const size_t k_end = std::min(candidates.size(), static_cast<size_t>(lo.candidates));
+        for (size_t k = static_cast<size_t>(p.loc.rank) + 1; k < k_end; ++k) {
+          const PoseEstimate e = VerifyCandidate(candidates[k], q_vecs[qi], map, geo, lo.pose);
+          if (!e.success) continue;
+          ++p.verified;
+          p.wrong += wrong_pose(e.floor_from_query) ? 1 : 0;
+        }
+      }
       if (num_rel > 0) {
         p.counted = true;
         std::vector<bool> rel;
@@ -199,8 +218,20 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
     });
     bar.Finish();
     sr.recall.assign(std::size(kRecallN), 0.0);
+    std::vector<RankedAnswer> top1, closures;
     for (size_t qi = 0; qi < per.size(); ++qi) {
       const PerQuery& p = per[qi];
+      sr.verified_poses += p.verified;
+      sr.wrong_verified_poses += p.wrong;
+      if (p.counted && !p.ranking.empty()) {
+        top1.push_back({p.ranking[0].score, IsRelevant(p.truth, db_pose[p.ranking[0].image], geo)});
+      }
+      if (p.loc.success) {
+        const Pose2D& e = p.loc.estimate.floor_from_query;
+        closures.push_back({static_cast<double>(p.loc.estimate.inliers),
+                            std::hypot(e.x - p.truth.x, e.y - p.truth.y) <= kSuccessMeters &&
+                                std::abs(WrapAngle(e.theta - p.truth.theta)) <= kSuccessRadians});
+      }
       if (p.counted) {
         ++sr.counted;
         sr.map += p.ap;
@@ -240,6 +271,8 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
     sr.map /= n;
     for (double& r : sr.recall) r /= n;
     sr.separation = ScoreSeparation(sr.rel_scores, sr.irr_scores);
+    sr.pr_bow = PrecisionRecallCurve(top1, sr.counted);
+    sr.pr_verified = PrecisionRecallCurve(closures, sr.counted);
     sr.separation_disjoint = ScoreSeparation(sr.rel_scores, sr.disjoint_scores);
     pr.splits.push_back(std::move(sr));
   }

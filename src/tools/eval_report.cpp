@@ -48,6 +48,24 @@ void WriteStat(Json& j, const std::string& key, const TimingStats& s) {
   j.Close('}');
 }
 
+// A precision-recall curve, thinned to at most 200 points (the first and last kept).
+void WriteCurve(Json& j, const std::string& key, const PrecisionRecall& pr) {
+  std::vector<double> e, p, r;
+  const size_t n = pr.evidence.size(), step = std::max<size_t>(1, (n + 199) / 200);
+  for (size_t i = 0; i < n; i += step) {
+    e.push_back(pr.evidence[i]);
+    p.push_back(pr.precision[i]);
+    r.push_back(pr.recall[i]);
+  }
+  if (n > 0 && (n - 1) % step != 0) {
+    e.push_back(pr.evidence.back());
+    p.push_back(pr.precision.back());
+    r.push_back(pr.recall.back());
+  }
+  j.Key(key).Open('{').Key("evidence").Nums(e).Key("precision").Nums(p).Key("recall").Nums(r);
+  j.Close('}');
+}
+
 double PaperSeparationFor(const RetrievalConfig& c) {
   if (c.vocabulary.kind == VocabularyKind::kHkm) return kPaperSeparationDbow;
   return c.bow.soft_assignment == 1 ? kPaperSeparationFast : kPaperSeparationHigh;
@@ -104,6 +122,14 @@ std::string ToJson(const EvalArgs& a, const Dataset& ds, const std::vector<Prese
       j.Key("correct").Int(static_cast<long long>(s.localized));
       j.Key("estimated").Int(static_cast<long long>(s.estimated));
       j.Key("position_error_mm").Nums(s.err_mm).Key("heading_error_deg").Nums(s.err_deg);
+      j.Close('}');
+      j.Key("backend").Open('{');
+      j.Key("verified_poses").Int(static_cast<long long>(s.verified_poses));
+      j.Key("wrong_verified_poses").Int(static_cast<long long>(s.wrong_verified_poses));
+      j.Key("recall_at_100_precision_bow_top1").Num(s.pr_bow.recall_at_full_precision);
+      j.Key("recall_at_100_precision_verified").Num(s.pr_verified.recall_at_full_precision);
+      WriteCurve(j, "pr_bow_top1", s.pr_bow);
+      WriteCurve(j, "pr_verified", s.pr_verified);
       j.Close('}');
       j.Close('}');
     }
@@ -183,6 +209,19 @@ std::string ToMarkdown(const EvalArgs& a, const std::vector<PresetResult>& resul
           100 * s.separation.kept_relevant, 100 * s.separation_disjoint.kept_relevant,
           s.queries ? 100.0 * s.localized / s.queries : 0.0,
           e.empty() ? "-" : (std::to_string(e[e.size() / 2]).substr(0, 5) + " mm").c_str());
+      md << b;
+    }
+    md << "\nWhat a SLAM backend reads: recall at 100% precision over the queries with a relevant "
+          "image, accepting the top-1 result by its BoW score, or the published loop closure (the "
+          "first verified candidate) by its inliers; and every pose the top "
+       << a.candidates
+       << " candidates verified, with the wrong ones (beyond 4.8 mm or 1.5 deg):\n\n"
+       << "| split | R@100P top-1 (BoW score) | R@100P verified (inliers) | verified poses | "
+          "wrong |\n| --- | --- | --- | --- | --- |\n";
+    for (const auto& s : pr.splits) {
+      std::snprintf(b, sizeof(b), "| %s | %.3f | %.3f | %zu | %zu |\n", s.name.c_str(),
+                    s.pr_bow.recall_at_full_precision, s.pr_verified.recall_at_full_precision,
+                    s.verified_poses, s.wrong_verified_poses);
       md << b;
     }
     const PaperTiming& p = PaperTimingFor(pr.config);

@@ -68,6 +68,14 @@ struct SplitResult {
   size_t localized = 0;                 // within 4.8 mm and 1.5 degrees
   size_t estimated = 0;                 // gave a pose at all
   std::vector<double> err_mm, err_deg;  // of every estimate
+  // What a SLAM backend reads. Every one of the top K candidates verified (not only until the
+  // first pose): how many gave a pose, and how many of those were wrong (beyond 4.8 mm or
+  // 1.5 degrees).
+  size_t verified_poses = 0, wrong_verified_poses = 0;
+  // Precision-recall over the queries with a relevant image: the top-1 result accepted by its
+  // BoW score; the loop closure the node publishes (the first verified candidate) accepted by
+  // its inlier count.
+  PrecisionRecall pr_bow, pr_verified;
 };
 
 struct ScalingPoint {

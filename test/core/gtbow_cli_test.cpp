@@ -11,6 +11,7 @@
 #include <string>
 
 #include <gtest/gtest.h>
+#include <yaml-cpp/yaml.h>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
@@ -88,6 +89,30 @@ TEST_F(GtbowCli, TrainEvaluateAndBenchmarkOnASyntheticFloor) {
   EXPECT_NE(r.output.find("| query_day090 | 90 | 6 |"), std::string::npos) << r.output;
   EXPECT_TRUE(fs::exists(dir_ / "eval" / "results.json"));
   EXPECT_TRUE(fs::exists(dir_ / "eval" / "summary.md"));
+  // What a backend reads (issue 15): every verified pose of the top K counted, the wrong ones
+  // among them, and recall at 100% precision; consistent with the localization figures.
+  EXPECT_NE(r.output.find("| split | R@100P top-1 (BoW score) | R@100P verified (inliers) |"),
+            std::string::npos)
+      << r.output;
+  const YAML::Node res = YAML::LoadFile((dir_ / "eval" / "results.json").string());
+  for (const YAML::Node& split : res["presets"][0]["splits"]) {
+    const YAML::Node b = split["backend"];
+    ASSERT_TRUE(b.IsMap());
+    const double verified = b["verified_poses"].as<double>();
+    const double wrong = b["wrong_verified_poses"].as<double>();
+    const double estimated = split["localization"]["estimated"].as<double>();
+    const double localized = split["localization"]["correct"].as<double>();
+    const double counted = split["queries_with_relevant"].as<double>();
+    EXPECT_GE(verified, estimated);  // each estimate is a verified pose; later candidates add
+    EXPECT_LE(wrong, verified);
+    EXPECT_GE(wrong, estimated - localized);  // a wrong estimate is a wrong verified pose
+    const double r100 = b["recall_at_100_precision_verified"].as<double>();
+    if (estimated == localized) EXPECT_DOUBLE_EQ(r100, localized / counted);
+    const double r100_bow = b["recall_at_100_precision_bow_top1"].as<double>();
+    EXPECT_GE(r100_bow, 0.0);
+    EXPECT_LE(r100_bow, 1.0);
+    EXPECT_EQ(b["pr_verified"]["precision"].size(), b["pr_verified"]["recall"].size());
+  }
   std::ifstream poses(dir_ / "poses.csv");
   std::string header;
   std::getline(poses, header);

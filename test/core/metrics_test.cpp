@@ -33,5 +33,26 @@ TEST(Metrics, ScoreSeparation) {
   EXPECT_NEAR(s.kept_relevant, 0.75, 1e-12);
 }
 
+TEST(Metrics, PrecisionRecallAndRecallAtFullPrecision) {
+  // Right at 0.9 and 0.8, wrong at 0.7, right at 0.6; four answers could be right.
+  const PrecisionRecall pr =
+      PrecisionRecallCurve({{0.6, true}, {0.9, true}, {0.7, false}, {0.8, true}}, 4);
+  ASSERT_EQ(pr.evidence.size(), 4u);
+  EXPECT_EQ(pr.evidence, (std::vector<double>{0.9, 0.8, 0.7, 0.6}));
+  EXPECT_EQ(pr.precision, (std::vector<double>{1.0, 1.0, 2.0 / 3.0, 0.75}));
+  EXPECT_EQ(pr.recall, (std::vector<double>{0.25, 0.5, 0.5, 0.75}));
+  EXPECT_DOUBLE_EQ(pr.recall_at_full_precision, 0.5);
+  // Answers of equal evidence are accepted together: a wrong one among the strongest gives 0.
+  EXPECT_DOUBLE_EQ(
+      PrecisionRecallCurve({{0.9, true}, {0.9, false}, {0.5, true}}, 2).recall_at_full_precision,
+      0.0);
+  EXPECT_DOUBLE_EQ(PrecisionRecallCurve({{3, false}, {2, true}}, 1).recall_at_full_precision, 0.0);
+  // All right: the recall of all of them.
+  EXPECT_DOUBLE_EQ(PrecisionRecallCurve({{30, true}, {12, true}}, 5).recall_at_full_precision, 0.4);
+  const PrecisionRecall none = PrecisionRecallCurve({}, 3);
+  EXPECT_TRUE(none.evidence.empty());
+  EXPECT_DOUBLE_EQ(none.recall_at_full_precision, 0.0);
+}
+
 }  // namespace
 }  // namespace gtbow

@@ -100,8 +100,15 @@ struct MapAccess {
   std::function<std::string(uint32_t image)> unusable;
 };
 
+// Verifies one retrieved candidate: a pose from its matches with the map image's keypoints
+// (`inlier_pixels`, when given, receives the query pixels of the inliers).
+PoseEstimate VerifyCandidate(const QueryResult& candidate, const BowVector& query,
+                             const MapAccess& map, const ImageGeometry& geometry,
+                             const PoseOptions& options,
+                             std::vector<Vec2>* inlier_pixels = nullptr);
+
 // Verifies retrieved candidates (with their matches) in order until one gives a pose with
-// enough inliers.
+// enough inliers (VerifyCandidate).
 Localization VerifyCandidates(const std::vector<QueryResult>& candidates, const BowVector& query,
                               const MapAccess& map, const ImageGeometry& geometry,
                               const LocalizationOptions& options);

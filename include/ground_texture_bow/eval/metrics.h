@@ -25,4 +25,20 @@ struct Separation {
 Separation ScoreSeparation(const std::vector<double>& relevant_scores,
                            std::vector<double> irrelevant_scores, double reject = 0.99);
 
+// What a SLAM backend reads: answers (a top-1 result, a verified loop closure) accepted in
+// order of their evidence (a BoW score, an inlier count), each right or wrong.
+struct RankedAnswer {
+  double evidence = 0.0;
+  bool correct = false;
+};
+// The precision-recall curve of accepting every answer with evidence >= t, for every t (answers
+// of equal evidence are accepted together), and the recall at 100% precision: the largest
+// recall of a threshold that accepts no wrong answer (0 when the strongest answer is wrong).
+// `positives` is the recall's denominator (the queries that have a right answer to find).
+struct PrecisionRecall {
+  std::vector<double> evidence, precision, recall;  // one point per distinct evidence value
+  double recall_at_full_precision = 0.0;
+};
+PrecisionRecall PrecisionRecallCurve(std::vector<RankedAnswer> answers, size_t positives);
+
 }  // namespace gtbow
