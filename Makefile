@@ -13,6 +13,8 @@
 #                   ../shared/real_floors), a table per surface into docs/RESULTS.md
 #   make benchmark-authors  our presets beside the authors' choices (each alone and together)
 #                   on the 4,000-image dataset issue 14 measured the authors' code on
+#   make benchmark-verification  issue 15's verification ablation (wrong verified poses) on the
+#                   real photographs and that dataset
 SHELL := /bin/bash
 # Debian's catkin lives in /usr/bin's python3; a pyenv python3 earlier on PATH cannot see it.
 export PATH := /usr/bin:$(PATH)
@@ -27,7 +29,7 @@ BENCH_DATA ?= $(CURDIR)/build/benchmark/asphalt32k
 BENCH_OUT  ?= $(CURDIR)/build/benchmark/eval
 
 .PHONY: deps build demo test test-sanitize fuzz soak benchmark bench-scaling bench-data clean \
-  benchmark-real benchmark-authors
+  benchmark-real benchmark-authors benchmark-verification
 
 REAL_FLOORS ?= $(abspath $(CURDIR)/../shared/real_floors)
 
@@ -110,6 +112,12 @@ benchmark-real: build
 # the authors' choices alone and together (about 15 minutes).
 benchmark-authors: build
 	@bash scripts/benchmark_authors.sh $(GTBOW) build/benchmark/s4k build/benchmark/authors_eval
+
+# Issue 15's verification ablation on the real photographs and the 4,000-image asphalt (needs
+# make benchmark-real's dataset; about 5 minutes): docs/RESULTS.md, section "verification".
+benchmark-verification: build
+	@bash scripts/benchmark_verification.sh $(GTBOW) build/benchmark/real \
+	  build/benchmark/s4k build/benchmark/verification_eval
 
 clean:
 	rm -rf build

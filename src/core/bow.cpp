@@ -92,6 +92,7 @@ int BowEncoder::SizeBin(const Keypoint& k) const {
 BowVector BowEncoder::Encode(const ImageFeatures& f) const {
   BowVector out;
   out.source = f.keypoints;
+  out.source_descriptors = f.descriptors;
   out.angles.reserve(f.size());
   for (const auto& k : f.keypoints) out.angles.push_back(k.angle);
   if (f.size() == 0) return out;

@@ -16,6 +16,7 @@ void RetrievalConfig::Check() const {
   features.Check();
   vocabulary.Check();
   bow.Check();
+  verification.Check();
   if (bow.compact_postings && features.num_features > 256) {
     throw std::invalid_argument(
         "bow: compact_postings holds at most 256 keypoints per image; set "
@@ -77,6 +78,21 @@ Field Enum(const char* section, const char* key, S RetrievalConfig::*part, E S::
           [part, field, name](const RetrievalConfig& c) { return name((c.*part).*field); }, true};
 }
 
+// A verification option (unrecorded: they do not shape the map).
+template <typename T>
+Field Verify(const char* key, T LocalizationOptions::*field) {
+  return {"verification", key,
+          [field](RetrievalConfig* c, const YAML::Node& n) { c->verification.*field = n.as<T>(); },
+          [field](const RetrievalConfig& c) { return Text(c.verification.*field); }, false};
+}
+template <typename T>
+Field VerifyPose(const char* key, T PoseOptions::*field) {
+  return {
+      "verification", key,
+      [field](RetrievalConfig* c, const YAML::Node& n) { c->verification.pose.*field = n.as<T>(); },
+      [field](const RetrievalConfig& c) { return Text(c.verification.pose.*field); }, false};
+}
+
 const std::vector<Field>& Fields() {
   using R = RetrievalConfig;
   using F = FeatureOptions;
@@ -134,6 +150,28 @@ const std::vector<Field>& Fields() {
       Value("bow", "orientation_bins", &R::bow, &B::orientation_bins),
       Enum("bow", "scoring", &R::bow, &B::scoring, &ParseScoring, &ScoringName),
       Value("bow", "compact_postings", &R::bow, &B::compact_postings),
+      Verify("candidates", &LocalizationOptions::candidates),
+      Field{"verification", "matches",
+            [](RetrievalConfig* c, const YAML::Node& n) {
+              c->verification.matches = ParseMatchSource(n.as<std::string>());
+            },
+            [](const RetrievalConfig& c) { return MatchSourceName(c.verification.matches); },
+            false},
+      Verify("descriptor_ratio", &LocalizationOptions::descriptor_ratio),
+      Verify("max_conflict_ratio", &LocalizationOptions::max_conflict_ratio),
+      Verify("consensus_distance", &LocalizationOptions::consensus_distance),
+      Verify("consensus_angle", &LocalizationOptions::consensus_angle),
+      VerifyPose("min_inliers", &PoseOptions::min_inliers),
+      VerifyPose("inlier_threshold", &PoseOptions::inlier_threshold),
+      VerifyPose("max_iterations", &PoseOptions::max_iterations),
+      VerifyPose("confidence", &PoseOptions::confidence),
+      VerifyPose("weighted", &PoseOptions::weighted),
+      VerifyPose("angle_tolerance", &PoseOptions::angle_tolerance),
+      VerifyPose("min_inlier_fraction", &PoseOptions::min_inlier_fraction),
+      VerifyPose("min_spread", &PoseOptions::min_spread),
+      VerifyPose("max_theta_sigma", &PoseOptions::max_theta_sigma),
+      VerifyPose("max_second_ratio", &PoseOptions::max_second_ratio),
+
   };
   return fields;
 }
@@ -172,11 +210,12 @@ RetrievalConfig ParseRetrievalConfig(const std::string& text, const std::string&
   }
   RetrievalConfig c;
   if (root.IsNull()) return c;
-  if (!root.IsMap()) fail(&root, "expected sections features, vocabulary and bow");
+  if (!root.IsMap()) fail(&root, "expected sections features, vocabulary, bow and verification");
   for (const auto& section : root) {
     const std::string name = section.first.as<std::string>();
-    if (name != "features" && name != "vocabulary" && name != "bow") {
-      fail(&section.first, "unknown section '" + name + "' (valid: features, vocabulary, bow)");
+    if (name != "features" && name != "vocabulary" && name != "bow" && name != "verification") {
+      fail(&section.first,
+           "unknown section '" + name + "' (valid: features, vocabulary, bow, verification)");
     }
     if (!section.second.IsMap()) fail(&section.second, "section '" + name + "' must be a mapping");
     for (const auto& kv : section.second) {
@@ -230,6 +269,17 @@ std::string RetrievalConfigDifference(const RetrievalConfig& a, const std::strin
             a_name + "), " + vb + " (" + b_name + ")";
   }
   return diff;
+}
+
+std::string FormatVerificationOptions(const LocalizationOptions& verification) {
+  RetrievalConfig c;
+  c.verification = verification;
+  std::ostringstream s;
+  s << "verification:\n";
+  for (const Field& f : Fields()) {
+    if (std::string(f.section) == "verification") s << "  " << f.key << ": " << f.write(c) << "\n";
+  }
+  return s.str();
 }
 
 std::string FormatFeatureOptions(const FeatureOptions& features) {

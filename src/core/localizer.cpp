@@ -21,7 +21,6 @@ void PutKeypoints(BinaryWriter* w, const std::vector<Keypoint>& k) { w->PutVecto
 
 void LocalizerOptions::Check() const {
   retrieval.Check();
-  localization.Check();
   if (!(meters_per_pixel > 0.0) || !std::isfinite(meters_per_pixel)) {
     throw std::invalid_argument("meters_per_pixel must be positive and finite");
   }
@@ -108,10 +107,31 @@ uint32_t Localizer::Add(const ProcessedImage& image, int64_t stamp_ns,
   return id;
 }
 
-std::vector<Candidate> Localizer::QueryLocked(const BowVector& bow,
-                                              const std::vector<Keypoint>& keypoints, int width,
-                                              int height, size_t k, bool verify,
-                                              uint32_t exclude_from, uint32_t exclude_to) const {
+int LoopClosureCandidate(const std::vector<Candidate>& candidates,
+                         const LocalizationOptions& options) {
+  int best = -1;
+  for (size_t i = 0; i < candidates.size(); ++i) {
+    if (!candidates[i].verified) continue;
+    if (options.max_conflict_ratio <= 0.0) return static_cast<int>(i);
+    if (best < 0 || candidates[i].relative.inliers > candidates[best].relative.inliers)
+      best = static_cast<int>(i);
+  }
+  return best;
+}
+
+MapAccess Localizer::RelativeAccess() const {
+  MapAccess map;
+  map.keypoints = [this](uint32_t id) -> const std::vector<Keypoint>& {
+    return keyframes_.at(id).keypoints;
+  };
+  map.descriptors = [this](uint32_t id) { return keyframes_.at(id).descriptors; };
+  map.pose = [](uint32_t) { return Pose2D{}; };
+  return map;
+}
+
+std::vector<Candidate> Localizer::QueryLocked(const BowVector& bow, int width, int height, size_t k,
+                                              bool verify, uint32_t exclude_from,
+                                              uint32_t exclude_to) const {
   std::vector<Candidate> out;
   if (bow.source.empty() || k == 0) return out;
   const size_t excluded = exclude_to > exclude_from ? exclude_to - exclude_from : 0;
@@ -129,15 +149,34 @@ std::vector<Candidate> Localizer::QueryLocked(const BowVector& bow,
       if (kf.width != width || kf.height != height) {
         c.relative.reason = "the images differ in size";
       } else {
-        const auto matches = MatchesOf(r, keypoints, kf.keypoints);
-        c.relative =
-            EstimatePose(matches, Pose2D{}, GeometryOf(width, height), options_.localization.pose);
+        // The relative pose: the match image at the origin.
+        c.relative = VerifyCandidate(r, bow, RelativeAccess(), GeometryOf(width, height),
+                                     options_.retrieval.verification, &c.inliers);
         c.verified = c.relative.success;
-        for (int i : c.relative.inlier_indices) c.inliers.push_back(matches[i].query);
       }
     }
     out.push_back(std::move(c));
     if (out.size() == k) break;
+  }
+  if (verify && options_.retrieval.verification.max_conflict_ratio > 0.0) {
+    // Consensus among the candidates, compared in the map frame (keyframes with a pose).
+    std::vector<std::optional<Pose2D>> poses;
+    std::vector<PoseEstimate> estimates;
+    for (const Candidate& c : out) {
+      poses.push_back(
+          c.has_pose && c.verified
+              ? std::optional<Pose2D>(Compose(c.map_from_camera, c.relative.floor_from_query))
+              : std::nullopt);
+      estimates.push_back(c.relative);
+    }
+    ResolveConflicts(poses, &estimates, options_.retrieval.verification);
+    for (size_t i = 0; i < out.size(); ++i) {
+      if (out[i].verified && !estimates[i].success) {
+        out[i].verified = false;
+        out[i].relative = std::move(estimates[i]);
+        out[i].inliers.clear();
+      }
+    }
   }
   return out;
 }
@@ -145,8 +184,7 @@ std::vector<Candidate> Localizer::QueryLocked(const BowVector& bow,
 std::vector<Candidate> Localizer::Query(const ProcessedImage& image, size_t k, bool verify,
                                         uint32_t exclude_from, uint32_t exclude_to) const {
   std::shared_lock<std::shared_mutex> lock(mutex_);
-  return QueryLocked(image.bow, image.features.keypoints, image.width, image.height, k, verify,
-                     exclude_from, exclude_to);
+  return QueryLocked(image.bow, image.width, image.height, k, verify, exclude_from, exclude_to);
 }
 
 std::vector<Candidate> Localizer::QueryKeyframe(uint32_t id, size_t k, bool verify) const {
@@ -167,7 +205,7 @@ std::vector<Candidate> Localizer::QueryKeyframe(uint32_t id, size_t k, bool veri
   f.descriptors = kf.descriptors;
   const BowVector bow = encoder_->Encode(f);  // outside the lock: the heavy part
   std::shared_lock<std::shared_mutex> lock(mutex_);
-  return QueryLocked(bow, f.keypoints, kf.width, kf.height, k, verify, id, id + 1);
+  return QueryLocked(bow, kf.width, kf.height, k, verify, id, id + 1);
 }
 
 Localization Localizer::Localize(const ProcessedImage& image) const {
@@ -182,10 +220,7 @@ Localization Localizer::Localize(const ProcessedImage& image) const {
     return none;
   }
   // The evaluation's own verification (pose.cpp), over this map's keyframes.
-  MapAccess map;
-  map.keypoints = [this](uint32_t id) -> const std::vector<Keypoint>& {
-    return keyframes_.at(id).keypoints;
-  };
+  MapAccess map = RelativeAccess();
   map.pose = [this](uint32_t id) { return keyframes_.at(id).map_from_camera; };
   map.unusable = [&](uint32_t id) -> std::string {
     const Keyframe& kf = keyframes_.at(id);
@@ -193,10 +228,10 @@ Localization Localizer::Localize(const ProcessedImage& image) const {
     if (kf.width != image.width || kf.height != image.height) return "other image size";
     return "";
   };
-  const auto results =
-      database_->Query(image.bow, static_cast<size_t>(options_.localization.candidates), true);
+  const auto results = database_->Query(
+      image.bow, static_cast<size_t>(options_.retrieval.verification.candidates), true);
   return VerifyCandidates(results, image.bow, map, GeometryOf(image.width, image.height),
-                          options_.localization);
+                          options_.retrieval.verification);
 }
 
 namespace {

@@ -1,7 +1,14 @@
 #include "ground_texture_bow/core/pose.h"
 
+#include "ground_texture_bow/core/enum_names.h"
+#include "hamming_distance.h"
+
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <functional>
+#include <limits>
 #include <random>
 #include <stdexcept>
 
@@ -16,22 +23,24 @@ Vec2 Rotate(double theta, Vec2 p) {
 
 double Squared(Vec2 a) { return a.x * a.x + a.y * a.y; }
 
-// Draws indices with probability proportional to their weight (or uniformly).
+// Draws from `pool` with probability proportional to the weights (or uniformly).
 class Sampler {
  public:
-  Sampler(const std::vector<PointMatch>& m, bool weighted, uint64_t seed) : rng_(seed) {
-    cumulative_.reserve(m.size());
+  Sampler(const std::vector<double>& w, const std::vector<int>& pool, uint64_t seed)
+      : rng_(seed), pool_(pool) {
+    cumulative_.reserve(pool.size());
     double sum = 0.0;
-    for (const PointMatch& x : m) cumulative_.push_back(sum += weighted ? x.weight : 1.0);
+    for (int i : pool) cumulative_.push_back(sum += w[i]);
   }
   int Draw() {
     const double u = static_cast<double>(rng_() >> 11) * 0x1.0p-53 * cumulative_.back();
     const auto it = std::upper_bound(cumulative_.begin(), cumulative_.end(), u);
-    return static_cast<int>(std::min<size_t>(it - cumulative_.begin(), cumulative_.size() - 1));
+    return pool_[std::min<size_t>(it - cumulative_.begin(), cumulative_.size() - 1)];
   }
 
  private:
   std::mt19937_64 rng_;
+  const std::vector<int>& pool_;
   std::vector<double> cumulative_;
 };
 
@@ -67,6 +76,67 @@ double Residual2(const Rigid2D& r, Vec2 q, Vec2 d) {
   return Squared({p.x + r.t.x - d.x, p.y + r.t.y - d.y});
 }
 
+// The matches in centred coordinates, with their weights and orientation changes.
+struct Problem {
+  std::vector<Vec2> q, d;
+  std::vector<double> w, rot;
+  double thr2 = 0.0;
+  double angle_tolerance = 0.0;  // 0: orientations not checked
+
+  bool Inlier(const Rigid2D& h, int k) const {
+    if (Residual2(h, q[k], d[k]) >= thr2) return false;
+    return angle_tolerance <= 0.0 || !std::isfinite(rot[k]) ||
+           std::abs(WrapAngle(rot[k] - h.theta)) <= angle_tolerance;
+  }
+};
+
+struct Hypothesis {
+  Rigid2D r;
+  double score = -1.0;  // summed weight of its inliers; < 0: none found
+};
+
+// Two-point RANSAC over the matches in `pool`; hypotheses `accept` refuses are skipped.
+Hypothesis Ransac(const Problem& p, const std::vector<int>& pool, const PoseOptions& o,
+                  const std::function<bool(const Rigid2D&)>& accept) {
+  Hypothesis best;
+  if (pool.size() < 2) return best;
+  double total = 0.0;
+  for (int k : pool) total += p.w[k];
+  Sampler sampler(p.w, pool, o.seed);
+  const double thr = o.inlier_threshold;
+  int needed = o.max_iterations;
+  for (int it = 0; it < std::min(needed, o.max_iterations); ++it) {
+    const int i = sampler.Draw(), j = sampler.Draw();
+    if (i == j) continue;
+    const Vec2 dq{p.q[j].x - p.q[i].x, p.q[j].y - p.q[i].y};
+    const Vec2 dd{p.d[j].x - p.d[i].x, p.d[j].y - p.d[i].y};
+    const double lq = std::sqrt(Squared(dq)), ld = std::sqrt(Squared(dd));
+    // A rigid map keeps distances: a pair that does not cannot be two inliers.
+    if (lq < 2.0 * thr || std::abs(lq - ld) > 2.0 * thr) continue;
+    Rigid2D h;
+    h.theta = std::atan2(dq.x * dd.y - dq.y * dd.x, dq.x * dd.x + dq.y * dd.y);
+    const Vec2 rq = Rotate(h.theta, {(p.q[i].x + p.q[j].x) / 2, (p.q[i].y + p.q[j].y) / 2});
+    h.t = {(p.d[i].x + p.d[j].x) / 2 - rq.x, (p.d[i].y + p.d[j].y) / 2 - rq.y};
+    if (accept && !accept(h)) continue;
+    double score = 0.0;
+    for (int k : pool) {
+      if (p.Inlier(h, k)) score += p.w[k];
+    }
+    if (score > best.score) {
+      best = {h, score};
+      // Adaptive stop: the (weighted) inlier fraction makes an all-inlier sample likely.
+      const double f = std::min(1.0, score / total);
+      if (f >= 1.0) {
+        needed = it + 1;
+      } else if (f > 0.0) {
+        const double k = std::log(1.0 - o.confidence) / std::log(1.0 - f * f);
+        needed = static_cast<int>(std::min<double>(o.max_iterations, std::ceil(k)));
+      }
+    }
+  }
+  return best;
+}
+
 // Inverse of a symmetric 3x3 matrix; false when singular.
 bool Invert3(const std::array<double, 9>& m, std::array<double, 9>* out) {
   const double a = m[0], b = m[1], c = m[2], d = m[3], e = m[4], f = m[5], g = m[6], h = m[7],
@@ -93,26 +163,58 @@ void PoseOptions::Check() const {
        "inlier_threshold must be positive");
   need(min_inliers >= 2, "min_inliers must be >= 2");
   need(refine_iterations >= 0, "refine_iterations must be >= 0");
+  need(angle_tolerance >= 0.0 && angle_tolerance <= M_PI, "angle_tolerance must be in [0, pi]");
+  need(min_inlier_fraction >= 0.0 && min_inlier_fraction <= 1.0,
+       "min_inlier_fraction must be in [0, 1]");
+  need(min_spread >= 0.0 && std::isfinite(min_spread), "min_spread must be >= 0");
+  need(max_theta_sigma >= 0.0 && std::isfinite(max_theta_sigma), "max_theta_sigma must be >= 0");
+  need(max_second_ratio >= 0.0 && std::isfinite(max_second_ratio), "max_second_ratio must be >= 0");
 }
 
 void LocalizationOptions::Check() const {
   if (candidates < 1) throw std::invalid_argument("localization: candidates must be >= 1");
+  if (!(descriptor_ratio > 0.0 && descriptor_ratio <= 1.0)) {
+    throw std::invalid_argument("localization: descriptor_ratio must be in (0, 1]");
+  }
+  if (!(max_conflict_ratio >= 0.0) || !std::isfinite(max_conflict_ratio)) {
+    throw std::invalid_argument("localization: max_conflict_ratio must be >= 0");
+  }
+  if (!(consensus_distance > 0.0) || !(consensus_angle > 0.0) ||
+      !std::isfinite(consensus_distance) || !std::isfinite(consensus_angle)) {
+    throw std::invalid_argument("localization: consensus_distance and consensus_angle must be > 0");
+  }
   pose.Check();
 }
+
+namespace {
+constexpr EnumName<MatchSource> kMatchSources[] = {{"words", MatchSource::kWords},
+                                                   {"descriptors", MatchSource::kDescriptors}};
+}  // namespace
+
+MatchSource ParseMatchSource(const std::string& name) {
+  return ParseEnumName(name, "match source", kMatchSources);
+}
+std::string MatchSourceName(MatchSource source) { return EnumValueName(source, kMatchSources); }
 
 PoseEstimate EstimatePose(const std::vector<PointMatch>& matches, const Pose2D& floor_from_database,
                           const ImageGeometry& geometry, const PoseOptions& o) {
   o.Check();
   PoseEstimate est;
   const int n = static_cast<int>(matches.size());
+  est.matches = n;
   if (n < o.min_inliers) {
     est.reason =
         std::to_string(n) + " matches, fewer than min_inliers = " + std::to_string(o.min_inliers);
     return est;
   }
   const Vec2 c{(geometry.width - 1) / 2.0, (geometry.height - 1) / 2.0};
-  std::vector<Vec2> q(n), d(n);
-  std::vector<double> w(n);
+  Problem p;
+  p.q.resize(n);
+  p.d.resize(n);
+  p.w.resize(n);
+  p.rot.resize(n);
+  p.thr2 = o.inlier_threshold * o.inlier_threshold;
+  p.angle_tolerance = o.angle_tolerance;
   for (int i = 0; i < n; ++i) {
     const PointMatch& m = matches[i];
     if (!(m.weight > 0.0) || !std::isfinite(m.weight) || !std::isfinite(m.query.x) ||
@@ -120,78 +222,73 @@ PoseEstimate EstimatePose(const std::vector<PointMatch>& matches, const Pose2D& 
       throw std::invalid_argument("EstimatePose: match " + std::to_string(i) +
                                   " has a non-finite coordinate or a non-positive weight");
     }
-    q[i] = {m.query.x - c.x, m.query.y - c.y};
-    d[i] = {m.database.x - c.x, m.database.y - c.y};
-    w[i] = o.weighted ? m.weight : 1.0;
+    p.q[i] = {m.query.x - c.x, m.query.y - c.y};
+    p.d[i] = {m.database.x - c.x, m.database.y - c.y};
+    p.w[i] = o.weighted ? m.weight : 1.0;
+    p.rot[i] = m.rotation;
   }
-  double total = 0.0;
-  for (double x : w) total += x;
-  const double thr2 = o.inlier_threshold * o.inlier_threshold;
-
-  // RANSAC over two-point samples.
-  Sampler sampler(matches, o.weighted, o.seed);
-  Rigid2D best;
-  double best_score = -1.0;
-  int needed = o.max_iterations;
-  for (int it = 0; it < std::min(needed, o.max_iterations); ++it) {
-    const int i = sampler.Draw(), j = sampler.Draw();
-    if (i == j) continue;
-    const Vec2 dq{q[j].x - q[i].x, q[j].y - q[i].y}, dd{d[j].x - d[i].x, d[j].y - d[i].y};
-    const double lq = std::sqrt(Squared(dq)), ld = std::sqrt(Squared(dd));
-    // A rigid map keeps distances: a pair that does not cannot be two inliers.
-    if (lq < 2.0 * o.inlier_threshold || std::abs(lq - ld) > 2.0 * o.inlier_threshold) continue;
-    Rigid2D h;
-    h.theta = std::atan2(dq.x * dd.y - dq.y * dd.x, dq.x * dd.x + dq.y * dd.y);
-    const Vec2 rq = Rotate(h.theta, {(q[i].x + q[j].x) / 2, (q[i].y + q[j].y) / 2});
-    h.t = {(d[i].x + d[j].x) / 2 - rq.x, (d[i].y + d[j].y) / 2 - rq.y};
-    double score = 0.0;
-    for (int k = 0; k < n; ++k) {
-      if (Residual2(h, q[k], d[k]) < thr2) score += w[k];
-    }
-    if (score > best_score) {
-      best_score = score;
-      best = h;
-      // Adaptive stop: the (weighted) inlier fraction makes an all-inlier sample likely.
-      const double f = std::min(1.0, score / total);
-      if (f >= 1.0) {
-        needed = it + 1;
-      } else if (f > 0.0) {
-        const double k = std::log(1.0 - o.confidence) / std::log(1.0 - f * f);
-        needed = static_cast<int>(std::min<double>(o.max_iterations, std::ceil(k)));
-      }
-    }
-  }
-  if (best_score <= 0.0) {
+  std::vector<int> all(n);
+  for (int i = 0; i < n; ++i) all[i] = i;
+  const Hypothesis first = Ransac(p, all, o, nullptr);
+  if (first.score <= 0.0) {
     est.reason = "no consistent pair of matches among " + std::to_string(n);
     return est;
   }
   // Least-squares refinement on the inliers, re-selected after each fit.
+  Rigid2D best = first.r;
   std::vector<int> inl;
   auto select = [&](const Rigid2D& r) {
     inl.clear();
     for (int k = 0; k < n; ++k) {
-      if (Residual2(r, q[k], d[k]) < thr2) inl.push_back(k);
+      if (p.Inlier(r, k)) inl.push_back(k);
     }
   };
   select(best);
   for (int it = 0; it < o.refine_iterations && static_cast<int>(inl.size()) >= 2; ++it) {
-    const Rigid2D r = FitRigid(q, d, w, inl);
+    const Rigid2D r = FitRigid(p.q, p.d, p.w, inl);
     const std::vector<int> before = inl;
     select(r);
     best = r;
     if (inl == before) break;
   }
   est.inliers = static_cast<int>(inl.size());
+  est.database_from_query = best;
+
+  // The evidence: spread of the inliers, agreement of their orientations.
+  if (!inl.empty()) {
+    double mx = 0, my = 0;
+    for (int k : inl) mx += p.q[k].x, my += p.q[k].y;
+    mx /= est.inliers;
+    my /= est.inliers;
+    double sxx = 0, syy = 0, sxy = 0;
+    for (int k : inl) {
+      const double dx = p.q[k].x - mx, dy = p.q[k].y - my;
+      sxx += dx * dx;
+      syy += dy * dy;
+      sxy += dx * dy;
+    }
+    sxx /= est.inliers;
+    syy /= est.inliers;
+    sxy /= est.inliers;
+    const double half = (sxx + syy) / 2,
+                 root = std::sqrt((sxx - syy) * (sxx - syy) / 4 + sxy * sxy);
+    est.spread = std::sqrt(std::max(0.0, half - root));
+    int with = 0, agree = 0;
+    for (int k : inl) {
+      if (!std::isfinite(p.rot[k])) continue;
+      ++with;
+      agree += std::abs(WrapAngle(p.rot[k] - best.theta)) <= 15.0 * M_PI / 180.0 ? 1 : 0;
+    }
+    est.angle_agreement = with > 0 ? static_cast<double>(agree) / with : 1.0;
+  }
   if (est.inliers < o.min_inliers) {
     est.reason = std::to_string(est.inliers) +
                  " inliers, fewer than min_inliers = " + std::to_string(o.min_inliers);
     return est;
   }
   double sum2 = 0.0;
-  for (int k : inl) sum2 += Residual2(best, q[k], d[k]);
+  for (int k : inl) sum2 += Residual2(best, p.q[k], p.d[k]);
   est.residual_rms = std::sqrt(sum2 / est.inliers);
-  est.inlier_indices = inl;
-  est.database_from_query = best;
 
   // Query pose on the floor: its centre pixel lands at c + t in the database image.
   const double s = geometry.meters_per_pixel;
@@ -204,12 +301,12 @@ PoseEstimate EstimatePose(const std::vector<PointMatch>& matches, const Pose2D& 
   const double sigma2 = std::max(sum2 / dof, 1e-4);  // never claim better than 0.01 px
   std::array<double, 9> jtj{};
   for (int k : inl) {
-    const Vec2 p = Rotate(best.theta, q[k]);  // d residual / d theta = (-p.y, p.x)
+    const Vec2 r = Rotate(best.theta, p.q[k]);  // d residual / d theta = (-r.y, r.x)
     jtj[0] += 1;
     jtj[4] += 1;
-    jtj[2] += -p.y;
-    jtj[5] += p.x;
-    jtj[8] += p.x * p.x + p.y * p.y;
+    jtj[2] += -r.y;
+    jtj[5] += r.x;
+    jtj[8] += r.x * r.x + r.y * r.y;
   }
   jtj[6] = jtj[2];
   jtj[7] = jtj[5];
@@ -220,6 +317,7 @@ PoseEstimate EstimatePose(const std::vector<PointMatch>& matches, const Pose2D& 
     return est;
   }
   for (double& x : cov_px) x *= sigma2;
+  est.theta_sigma = std::sqrt(std::max(0.0, cov_px[8]));
   // J_f = diag(s R(theta_d), 1).
   const double cr = std::cos(floor_from_database.theta), sr = std::sin(floor_from_database.theta);
   const double jf[9] = {s * cr, -s * sr, 0, s * sr, s * cr, 0, 0, 0, 1};
@@ -231,6 +329,56 @@ PoseEstimate EstimatePose(const std::vector<PointMatch>& matches, const Pose2D& 
   for (int r = 0; r < 3; ++r)
     for (int col = 0; col < 3; ++col)
       for (int k = 0; k < 3; ++k) est.covariance[r * 3 + col] += tmp[r * 3 + k] * jf[col * 3 + k];
+
+  // A second hypothesis among the matches the best one leaves out, distinct from it: some image
+  // corner lands more than three inlier thresholds away.
+  if (o.max_second_ratio > 0.0) {
+    std::vector<int> rest;
+    size_t next = 0;
+    for (int k = 0; k < n; ++k) {
+      if (next < inl.size() && inl[next] == k) {
+        ++next;
+        continue;
+      }
+      rest.push_back(k);
+    }
+    const double hw = geometry.width / 2.0, hh = geometry.height / 2.0;
+    const double far2 = 9.0 * p.thr2;
+    auto distinct = [&](const Rigid2D& h) {
+      for (const Vec2 corner : {Vec2{-hw, -hh}, Vec2{hw, -hh}, Vec2{hw, hh}, Vec2{-hw, hh}}) {
+        const Vec2 a = Rotate(h.theta, corner), b = Rotate(best.theta, corner);
+        if (Squared({a.x + h.t.x - b.x - best.t.x, a.y + h.t.y - b.y - best.t.y}) > far2)
+          return true;
+      }
+      return false;
+    };
+    const Hypothesis second = Ransac(p, rest, o, distinct);
+    if (second.score > 0.0) {
+      for (int k : rest) est.second_inliers += p.Inlier(second.r, k) ? 1 : 0;
+    }
+  }
+
+  // The checks (issue 15), each off at 0.
+  char why[160] = "";
+  if (est.inliers < o.min_inlier_fraction * n) {
+    std::snprintf(why, sizeof(why), "%d inliers of %d matches, fewer than min_inlier_fraction %g",
+                  est.inliers, n, o.min_inlier_fraction);
+  } else if (est.spread < o.min_spread) {
+    std::snprintf(why, sizeof(why), "inliers spread over %.1f px, less than min_spread %g",
+                  est.spread, o.min_spread);
+  } else if (o.max_theta_sigma > 0.0 && est.theta_sigma > o.max_theta_sigma) {
+    std::snprintf(why, sizeof(why), "rotation uncertain: sigma %.2f deg above max_theta_sigma %.2f",
+                  est.theta_sigma * 180.0 / M_PI, o.max_theta_sigma * 180.0 / M_PI);
+  } else if (o.max_second_ratio > 0.0 && est.second_inliers >= o.max_second_ratio * est.inliers) {
+    std::snprintf(why, sizeof(why),
+                  "ambiguous: a second pose has %d inliers against %d (max_second_ratio %g)",
+                  est.second_inliers, est.inliers, o.max_second_ratio);
+  }
+  if (why[0] != '\0') {
+    est.reason = why;
+    return est;
+  }
+  est.inlier_indices = inl;
   est.success = true;
   return est;
 }
@@ -261,20 +409,196 @@ std::vector<PointMatch> MatchesOf(const QueryResult& result,
     if (!(weight > 0.0)) continue;
     const Keypoint& a = query_keypoints[p.query_keypoint];
     const Keypoint& b = database_keypoints[p.database_keypoint];
-    out.push_back({{a.x, a.y}, {b.x, b.y}, weight});
+    out.push_back({{a.x, a.y}, {b.x, b.y}, weight, WrapAngle(b.angle - a.angle)});
+  }
+  return out;
+}
+
+namespace {
+
+// Not under ThreadSanitizer: the clones' ifunc resolvers run during relocation, before the
+// TSan runtime is up, and crash once instrumented.
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__) && !defined(__SANITIZE_THREAD__)
+#define GTBOW_POPCNT_CLONE __attribute__((target_clones("popcnt", "default")))
+#else
+#define GTBOW_POPCNT_CLONE
+#endif
+
+// out[i * nd + j] = Hamming distance of query row i and database row j (`words` uint64 each).
+GTBOW_POPCNT_CLONE void HammingTable(const uint64_t* q, int nq, const uint64_t* d, int nd,
+                                     int words, uint32_t* out) {
+  for (int i = 0; i < nq; ++i) {
+    const uint64_t* a = q + static_cast<size_t>(i) * words;
+    for (int j = 0; j < nd; ++j) {
+      const uint64_t* b = d + static_cast<size_t>(j) * words;
+      uint32_t bits = 0;
+      for (int k = 0; k < words; ++k)
+        bits += static_cast<uint32_t>(__builtin_popcountll(a[k] ^ b[k]));
+      out[static_cast<size_t>(i) * nd + j] = bits;
+    }
+  }
+}
+
+}  // namespace
+
+std::vector<PointMatch> DescriptorMatches(const std::vector<Keypoint>& qk, const cv::Mat& qd,
+                                          const std::vector<Keypoint>& dk, const cv::Mat& dd,
+                                          double ratio) {
+  const int nq = qd.rows, nd = dd.rows;
+  if (nq != static_cast<int>(qk.size()) || nd != static_cast<int>(dk.size())) {
+    throw std::invalid_argument("DescriptorMatches: " + std::to_string(qk.size()) + " and " +
+                                std::to_string(dk.size()) + " keypoints but " + std::to_string(nq) +
+                                " and " + std::to_string(nd) + " descriptor rows");
+  }
+  std::vector<PointMatch> out;
+  if (nq == 0 || nd == 0) return out;
+  if (qd.type() != dd.type() || qd.cols != dd.cols || (qd.type() != CV_8U && qd.type() != CV_32F)) {
+    throw std::invalid_argument("DescriptorMatches: the two images' descriptors differ in kind");
+  }
+  const bool binary = qd.type() == CV_8U && qd.cols % 8 == 0;
+  // Binary rows as 64-bit words: the whole n_q x n_d table of Hamming distances at once.
+  std::vector<uint32_t> table;
+  if (binary) {
+    const int words = qd.cols / 8;
+    std::vector<uint64_t> qw(static_cast<size_t>(nq) * words), dw(static_cast<size_t>(nd) * words);
+    for (int i = 0; i < nq; ++i)
+      std::memcpy(&qw[static_cast<size_t>(i) * words], qd.ptr(i), qd.cols);
+    for (int j = 0; j < nd; ++j)
+      std::memcpy(&dw[static_cast<size_t>(j) * words], dd.ptr(j), dd.cols);
+    table.resize(static_cast<size_t>(nq) * nd);
+    HammingTable(qw.data(), nq, dw.data(), nd, words, table.data());
+  }
+  auto distance = [&](int i, int j) -> double {
+    if (binary) return table[static_cast<size_t>(i) * nd + j];
+    if (qd.type() == CV_8U) return HammingDistance(qd.ptr<uint8_t>(i), dd.ptr<uint8_t>(j), qd.cols);
+    const float* a = qd.ptr<float>(i);
+    const float* b = dd.ptr<float>(j);
+    double sum = 0.0;
+    for (int k = 0; k < qd.cols; ++k) sum += (a[k] - b[k]) * (a[k] - b[k]);
+    return std::sqrt(sum);
+  };
+  const double inf = std::numeric_limits<double>::infinity();
+  std::vector<double> q_best(nq, inf), q_second(nq, inf), d_best(nd, inf);
+  std::vector<int> q_arg(nq, -1), d_arg(nd, -1);
+  for (int i = 0; i < nq; ++i) {
+    for (int j = 0; j < nd; ++j) {
+      const double x = distance(i, j);
+      if (x < q_best[i]) {
+        q_second[i] = q_best[i];
+        q_best[i] = x;
+        q_arg[i] = j;
+      } else if (x < q_second[i]) {
+        q_second[i] = x;
+      }
+      if (x < d_best[j]) {
+        d_best[j] = x;
+        d_arg[j] = i;
+      }
+    }
+  }
+  for (int i = 0; i < nq; ++i) {
+    const int j = q_arg[i];
+    if (j < 0 || d_arg[j] != i || !(q_best[i] < ratio * q_second[i])) continue;
+    const Keypoint& a = qk[i];
+    const Keypoint& b = dk[j];
+    out.push_back({{a.x, a.y}, {b.x, b.y}, 1.0, WrapAngle(b.angle - a.angle)});
   }
   return out;
 }
 
 PoseEstimate VerifyCandidate(const QueryResult& r, const BowVector& query, const MapAccess& map,
-                             const ImageGeometry& geometry, const PoseOptions& options,
+                             const ImageGeometry& geometry, const LocalizationOptions& options,
                              std::vector<Vec2>* inlier_pixels) {
-  const auto matches = MatchesOf(r, query.source, map.keypoints(r.image));
-  PoseEstimate est = EstimatePose(matches, map.pose(r.image), geometry, options);
+  std::vector<PointMatch> matches;
+  if (options.matches == MatchSource::kDescriptors) {
+    if (!map.descriptors) {
+      throw std::invalid_argument("VerifyCandidate: descriptor matching without map descriptors");
+    }
+    matches = DescriptorMatches(query.source, query.source_descriptors, map.keypoints(r.image),
+                                map.descriptors(r.image), options.descriptor_ratio);
+  } else {
+    matches = MatchesOf(r, query.source, map.keypoints(r.image));
+  }
+  PoseEstimate est = EstimatePose(matches, map.pose(r.image), geometry, options.pose);
   if (est.success && inlier_pixels != nullptr) {
     for (int i : est.inlier_indices) inlier_pixels->push_back(matches[i].query);
   }
   return est;
+}
+
+void ResolveConflicts(const std::vector<std::optional<Pose2D>>& poses,
+                      std::vector<PoseEstimate>* estimates, const LocalizationOptions& o) {
+  if (o.max_conflict_ratio <= 0.0) return;
+  std::vector<PoseEstimate>& e = *estimates;
+  int best = -1;
+  for (size_t k = 0; k < e.size(); ++k) {
+    if (e[k].success && poses[k] && (best < 0 || e[k].inliers > e[best].inliers))
+      best = static_cast<int>(k);
+  }
+  if (best < 0) return;
+  const Pose2D& b = *poses[best];
+  auto agrees = [&](const Pose2D& p) {
+    return std::hypot(p.x - b.x, p.y - b.y) <= o.consensus_distance &&
+           std::abs(WrapAngle(p.theta - b.theta)) <= o.consensus_angle;
+  };
+  int strongest = -1;  // the strongest disagreeing pose
+  for (size_t k = 0; k < e.size(); ++k) {
+    if (!e[k].success || !poses[k] || agrees(*poses[k])) continue;
+    if (strongest < 0 || e[k].inliers > e[strongest].inliers) strongest = static_cast<int>(k);
+  }
+  if (strongest < 0) return;
+  const Pose2D& s = *poses[strongest];
+  const double apart = std::hypot(s.x - b.x, s.y - b.y);
+  const bool ambiguous = e[strongest].inliers >= o.max_conflict_ratio * e[best].inliers;
+  char why[200];
+  for (size_t k = 0; k < e.size(); ++k) {
+    if (!e[k].success || !poses[k]) continue;
+    const bool conflicting = !agrees(*poses[k]);
+    if (!conflicting && !ambiguous) continue;
+    if (ambiguous) {
+      std::snprintf(why, sizeof(why),
+                    "ambiguous place: candidates %d and %d verified with %d and %d inliers at "
+                    "poses %.1f mm apart (max_conflict_ratio %g)",
+                    best + 1, strongest + 1, e[best].inliers, e[strongest].inliers, 1000.0 * apart,
+                    o.max_conflict_ratio);
+    } else {
+      std::snprintf(why, sizeof(why),
+                    "disagrees with candidate %d (%d inliers against %d, %.1f mm apart)", best + 1,
+                    e[best].inliers, e[k].inliers,
+                    1000.0 * std::hypot(poses[k]->x - b.x, poses[k]->y - b.y));
+    }
+    e[k].success = false;
+    e[k].reason = why;
+    e[k].inlier_indices.clear();
+  }
+}
+
+std::vector<PoseEstimate> VerifyEach(const std::vector<QueryResult>& results,
+                                     const BowVector& query, const MapAccess& map,
+                                     const ImageGeometry& geometry, const LocalizationOptions& o,
+                                     std::vector<std::vector<Vec2>>* inlier_pixels) {
+  o.Check();
+  const size_t n = std::min(results.size(), static_cast<size_t>(o.candidates));
+  std::vector<PoseEstimate> out(n);
+  std::vector<std::optional<Pose2D>> poses(n);
+  if (inlier_pixels != nullptr) inlier_pixels->assign(n, {});
+  for (size_t k = 0; k < n; ++k) {
+    const std::string why = map.unusable ? map.unusable(results[k].image) : std::string();
+    if (!why.empty()) {
+      out[k].reason = why;
+      continue;
+    }
+    out[k] = VerifyCandidate(results[k], query, map, geometry, o,
+                             inlier_pixels != nullptr ? &(*inlier_pixels)[k] : nullptr);
+    if (out[k].success) poses[k] = out[k].floor_from_query;
+  }
+  ResolveConflicts(poses, &out, o);
+  if (inlier_pixels != nullptr) {
+    for (size_t k = 0; k < n; ++k) {
+      if (!out[k].success) (*inlier_pixels)[k].clear();
+    }
+  }
+  return out;
 }
 
 Localization VerifyCandidates(const std::vector<QueryResult>& results, const BowVector& query,
@@ -290,25 +614,46 @@ Localization VerifyCandidates(const std::vector<QueryResult>& results, const Bow
     loc.reason = "no database image shares a word with the query";
     return loc;
   }
-  std::string reasons;
   const size_t n = std::min(results.size(), static_cast<size_t>(o.candidates));
-  for (size_t rank = 0; rank < n; ++rank) {
-    const QueryResult& r = results[rank];
-    std::string why = map.unusable ? map.unusable(r.image) : std::string();
-    if (why.empty()) {
-      PoseEstimate est = VerifyCandidate(r, query, map, geometry, o.pose, &loc.inlier_pixels);
-      if (est.success) {
-        loc.success = true;
-        loc.image = r.image;
-        loc.rank = static_cast<int>(rank);
-        loc.score = r.score;
-        loc.estimate = std::move(est);
-        return loc;
-      }
-      why = est.reason;
+  auto answer = [&](size_t rank, PoseEstimate est) {
+    loc.success = true;
+    loc.image = results[rank].image;
+    loc.rank = static_cast<int>(rank);
+    loc.score = results[rank].score;
+    loc.estimate = std::move(est);
+    return loc;
+  };
+  std::string reasons;
+  auto note = [&](size_t rank, const std::string& why) {
+    if (rank < 3) {
+      reasons += (reasons.empty() ? "" : "; ") +
+                 ("image " + std::to_string(results[rank].image) + ": " + why);
     }
-    if (rank < 3)
-      reasons += (reasons.empty() ? "" : "; ") + ("image " + std::to_string(r.image) + ": " + why);
+  };
+  if (o.max_conflict_ratio > 0.0) {
+    std::vector<std::vector<Vec2>> pixels;
+    std::vector<PoseEstimate> each = VerifyEach(results, query, map, geometry, o, &pixels);
+    int best = -1;
+    for (size_t k = 0; k < each.size(); ++k) {
+      if (each[k].success && (best < 0 || each[k].inliers > each[best].inliers))
+        best = static_cast<int>(k);
+    }
+    if (best >= 0) {
+      loc.inlier_pixels = std::move(pixels[best]);
+      return answer(static_cast<size_t>(best), std::move(each[best]));
+    }
+    for (size_t k = 0; k < each.size(); ++k) note(k, each[k].reason);
+  } else {
+    for (size_t rank = 0; rank < n; ++rank) {
+      const QueryResult& r = results[rank];
+      std::string why = map.unusable ? map.unusable(r.image) : std::string();
+      if (why.empty()) {
+        PoseEstimate est = VerifyCandidate(r, query, map, geometry, o, &loc.inlier_pixels);
+        if (est.success) return answer(rank, std::move(est));
+        why = est.reason;
+      }
+      note(rank, why);
+    }
   }
   loc.reason = "none of " + std::to_string(n) + " candidates verified (" + reasons +
                (n > 3 ? "; ..." : "") + ")";

@@ -32,8 +32,6 @@ gtbow::LocalizerOptions ServerOptions::DefaultCore() {
   gtbow::LocalizerOptions core;
   core.threads = 2;
   core.meters_per_pixel = 0.00025;
-  core.localization.candidates = 5;
-  core.localization.pose.min_inliers = 6;
   return core;
 }
 
@@ -53,6 +51,11 @@ void ServerOptions::Check() const {
   need(exclude_recent >= 0, "~exclude_recent must be >= 0");
   need(localized_timeout > 0, "~localized_timeout must be > 0");
   need(planar_variance > 0, "~planar_variance must be > 0");
+  try {
+    temporal.Check();
+  } catch (const std::invalid_argument& e) {
+    throw std::invalid_argument(std::string("parameter ~temporal_*: ") + e.what());
+  }
   try {
     core.Check();
   } catch (const std::invalid_argument& e) {
@@ -82,15 +85,22 @@ ServerOptions ReadOptions(const ros::NodeHandle& pnh) {
   pnh.param("keyframe_min_distance", o.keyframe_min_distance, o.keyframe_min_distance);
   pnh.param("keyframe_min_angle", o.keyframe_min_angle, o.keyframe_min_angle);
   pnh.param("keyframe_every_n", o.keyframe_every_n, o.keyframe_every_n);
-  pnh.param("candidates", o.core.localization.candidates, o.core.localization.candidates);
-  pnh.param("min_inliers", o.core.localization.pose.min_inliers,
-            o.core.localization.pose.min_inliers);
+  // K and the inliers a pose needs: the preset's unless set (> 0).
+  int candidates = 0, min_inliers = 0;
+  pnh.param("candidates", candidates, candidates);
+  pnh.param("min_inliers", min_inliers, min_inliers);
   pnh.param("exclude_recent", o.exclude_recent, o.exclude_recent);
+  pnh.param("temporal_consistency", o.temporal.required, o.temporal.required);
+  pnh.param("temporal_distance", o.temporal.distance, o.temporal.distance);
+  pnh.param("temporal_angle", o.temporal.angle, o.temporal.angle);
+  pnh.param("temporal_max_motion", o.temporal.max_motion, o.temporal.max_motion);
   pnh.param("publish_tf", o.publish_tf, o.publish_tf);
   pnh.param("localized_timeout", o.localized_timeout, o.localized_timeout);
   pnh.param("planar_variance", o.planar_variance, o.planar_variance);
   pnh.param("camera_height", o.camera_height, o.camera_height);
   o.core.retrieval = gtbow::LoadRetrievalConfig(o.preset);
+  if (candidates != 0) o.core.retrieval.verification.candidates = candidates;
+  if (min_inliers != 0) o.core.retrieval.verification.pose.min_inliers = min_inliers;
   o.Check();
   return o;
 }
@@ -105,6 +115,7 @@ LocalizerServer::LocalizerServer(ros::NodeHandle nh, ros::NodeHandle pnh,
       updater_(nh, pnh, pnh.getNamespace()),  // named after this nodelet, not its manager
       mode_(options.mode) {
   options_.Check();
+  temporal_ = gtbow::TemporalConsistency(options_.temporal);
   std::string vocab_path = options_.vocabulary;
   if (vocab_path.empty()) vocab_path = gtbow::Localizer::VocabularyPathOf(options_.map);
   std::shared_ptr<gtbow::Vocabulary> vocab = gtbow::Vocabulary::Load(vocab_path);
@@ -294,8 +305,8 @@ void LocalizerServer::ProcessImage(const Pending& msg) {
     const uint32_t recent =
         mode == Mode::kMapping ? static_cast<uint32_t>(options_.exclude_recent) : 0;
     const auto cands =
-        localizer_->Query(img, static_cast<size_t>(options_.core.localization.candidates), true,
-                          n > recent ? n - recent : 0, n);
+        localizer_->Query(img, static_cast<size_t>(options_.core.retrieval.verification.candidates),
+                          true, n > recent ? n - recent : 0, n);
     uint32_t query_id = ground_texture_bow::CandidateList::NO_ID;
     if (mode == Mode::kMapping && IsKeyframe(pose)) {
       query_id = localizer_->Add(img, ToNanoseconds(header.stamp), pose);
@@ -305,13 +316,24 @@ void LocalizerServer::ProcessImage(const Pending& msg) {
     list.query_id = query_id;
     for (const auto& c : cands) list.candidates.push_back(ToCandidateMsg(c));
     candidates_pub_.publish(list);
-    PublishLoopClosures(cands, query_id, header);
-    for (const auto& c : cands) {
-      if (!c.verified) continue;
+    // The loop closure, once ~temporal_consistency images in a row agree on the place.
+    const int chosen = gtbow::LoopClosureCandidate(cands, options_.core.retrieval.verification);
+    std::optional<gtbow::ClosureObservation> seen;
+    if (chosen >= 0) {
+      const gtbow::Candidate& c = cands[static_cast<size_t>(chosen)];
+      seen = gtbow::ClosureObservation{
+          c.id, c.has_pose ? std::optional<gtbow::Pose2D>(c.map_from_camera) : std::nullopt,
+          c.relative.floor_from_query, pose};
       inliers = c.inliers;
       caption = "keyframe " + std::to_string(c.id) + ", " + std::to_string(c.relative.inliers) +
                 " inliers";
-      break;
+    }
+    if (temporal_.Next(seen)) {
+      PublishLoopClosure(cands[static_cast<size_t>(chosen)], query_id, header);
+    } else if (seen) {
+      held_closures_++;
+      caption += " (held: " + std::to_string(temporal_.run()) + " of " +
+                 std::to_string(options_.temporal.required) + " in a row)";
     }
   }
   if (debug_pub_.getNumSubscribers() > 0) {
@@ -347,29 +369,25 @@ void LocalizerServer::PublishFix(const gtbow::Localization& fix, const std_msgs:
   tf_broadcaster_.sendTransform(t);
 }
 
-void LocalizerServer::PublishLoopClosures(const std::vector<gtbow::Candidate>& cands,
-                                          uint32_t query_id, const std_msgs::Header& header) {
-  for (const auto& c : cands) {
-    if (!c.verified) continue;  // the ranked list goes to ~candidates; closures are verified
-    ground_texture_bow::LoopClosure lc;
-    lc.header = header;
-    lc.query_id = query_id;
-    lc.query_stamp = header.stamp;
-    lc.match_id = c.id;
-    lc.match_stamp = FromNanoseconds(c.stamp_ns);
-    lc.score = c.score;
-    lc.inliers = static_cast<uint32_t>(c.relative.inliers);
-    lc.match_from_query = ToOpticalPose2D(c.relative.floor_from_query);
-    const auto cov = ToOpticalCovariance(c.relative.covariance);
-    std::copy(cov.begin(), cov.end(), lc.covariance.begin());
-    lc.status = ground_texture_bow::LoopClosure::VERIFIED;
-    loop_pub_.publish(lc);
-    loop_closures_++;
-    if (query_id != ground_texture_bow::LoopClosure::NO_ID) {
-      std::lock_guard<std::mutex> lock(state_mutex_);
-      edges_.push_back({query_id, c.id});
-    }
-    break;  // the best verified candidate
+void LocalizerServer::PublishLoopClosure(const gtbow::Candidate& c, uint32_t query_id,
+                                         const std_msgs::Header& header) {
+  ground_texture_bow::LoopClosure lc;
+  lc.header = header;
+  lc.query_id = query_id;
+  lc.query_stamp = header.stamp;
+  lc.match_id = c.id;
+  lc.match_stamp = FromNanoseconds(c.stamp_ns);
+  lc.score = c.score;
+  lc.inliers = static_cast<uint32_t>(c.relative.inliers);
+  lc.match_from_query = ToOpticalPose2D(c.relative.floor_from_query);
+  const auto cov = ToOpticalCovariance(c.relative.covariance);
+  std::copy(cov.begin(), cov.end(), lc.covariance.begin());
+  lc.status = ground_texture_bow::LoopClosure::VERIFIED;
+  loop_pub_.publish(lc);
+  loop_closures_++;
+  if (query_id != ground_texture_bow::LoopClosure::NO_ID) {
+    std::lock_guard<std::mutex> lock(state_mutex_);
+    edges_.push_back({query_id, c.id});
   }
 }
 
@@ -483,6 +501,7 @@ void LocalizerServer::Diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat
   stat.add("fixes", fixes_.load());
   stat.add("failed fixes", failed_fixes_.load());
   stat.add("loop closures", loop_closures_.load());
+  stat.add("loop closures held (temporal consistency)", held_closures_.load());
   stat.add("localized", localized);
   stat.add("last error", last_error);
 }

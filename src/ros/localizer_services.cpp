@@ -37,7 +37,8 @@ void LocalizerServer::ForgetMapState() {
 bool LocalizerServer::OnQueryCandidates(ground_texture_bow::QueryCandidates::Request& req,
                                         ground_texture_bow::QueryCandidates::Response& res) {
   res.status = Serve("query_candidates", false, [&] {
-    const size_t k = req.k > 0 ? req.k : static_cast<size_t>(options_.core.localization.candidates);
+    const size_t k =
+        req.k > 0 ? req.k : static_cast<size_t>(options_.core.retrieval.verification.candidates);
     std::vector<gtbow::Candidate> cands;
     if (req.use_keyframe_id) {
       cands = localizer_->QueryKeyframe(req.keyframe_id, k, req.verify);

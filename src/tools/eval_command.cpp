@@ -72,12 +72,15 @@ std::unique_ptr<Vocabulary> GetVocabulary(const EvalArgs& a, const RetrievalConf
 
 PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const Dataset& ds,
                         const std::vector<std::string>& splits, std::string* rankings,
-                        std::string* poses) {
+                        std::string* poses, std::string* verifications) {
   PresetResult pr;
   pr.file = preset_file;
   pr.name = PresetName(preset_file);
   RetrievalConfig c = preset_file.empty() ? RetrievalConfig{} : LoadRetrievalConfig(preset_file);
   if (a.words > 0 && c.vocabulary.kind == VocabularyKind::kAkm) c.vocabulary.num_words = a.words;
+  if (a.candidates > 0) c.verification.candidates = a.candidates;
+  if (a.min_inliers > 0) c.verification.pose.min_inliers = a.min_inliers;
+  c.Check();
   pr.config = c;
   const ImageGeometry geo = ds.info().geometry;
   const fs::path cache = a.no_cache ? fs::path() : fs::path(a.cache);
@@ -120,7 +123,7 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
     std::vector<double> q;
     for (const auto& v : scaling_queries) {
       const auto t0 = std::chrono::steady_clock::now();
-      (void)db.Query(v, static_cast<size_t>(a.candidates), true);
+      (void)db.Query(v, static_cast<size_t>(c.verification.candidates), true);
       q.push_back(Ms(std::chrono::steady_clock::now() - t0));
     }
     sp.query = Summarise(q);
@@ -147,10 +150,9 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
   map.keypoints = [&](uint32_t i) -> const std::vector<Keypoint>& {
     return db_feats.at(i).keypoints;
   };
+  map.descriptors = [&](uint32_t i) { return db_feats.at(i).descriptors; };
   map.pose = [&](uint32_t i) { return db_pose.at(i); };
-  LocalizationOptions lo;
-  lo.candidates = a.candidates;
-  lo.pose.min_inliers = a.min_inliers;
+  const LocalizationOptions& lo = c.verification;
 
   // Retrieval and localization, split by split.
   for (size_t si = 0; si < splits.size(); ++si) {
@@ -171,6 +173,7 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
       Localization loc;
       Pose2D truth;
       size_t verified = 0, wrong = 0;  // over all top-K candidates
+      std::string rows;                // verifications.csv
     };
     std::vector<PerQuery> per(q_src.size());
     ProgressBar bar("queries " + split, q_src.size(), !a.quiet);
@@ -180,24 +183,36 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
       size_t num_rel = 0;
       for (const auto& dp : db_pose) num_rel += IsRelevant(p.truth, dp, geo) ? 1 : 0;
       p.ranking = db.Query(q_vecs[qi], 1000, false);
-      // Localization as the node does it (the first candidate that verifies), then every
-      // later candidate of the top K verified too, to count wrong poses among all of them.
+      // Localization as the node does it, then every candidate of the top K verified on its
+      // own (with the consensus, when on), to count wrong poses among all of them.
       const auto candidates = db.Query(q_vecs[qi], static_cast<size_t>(lo.candidates), true);
       p.loc = VerifyCandidates(candidates, q_vecs[qi], map, geo, lo);
       auto wrong_pose = [&](const Pose2D& e) {
         return std::hypot(e.x - p.truth.x, e.y - p.truth.y) > kSuccessMeters ||
                std::abs(WrapAngle(e.theta - p.truth.theta)) > kSuccessRadians;
       };
-      if (p.loc.success) {
+      // One row per verified candidate: its evidence and its error against the truth.
+      auto record = [&](size_t rank, const PoseEstimate& e) {
         ++p.verified;
-        p.wrong += wrong_pose(p.loc.estimate.floor_from_query) ? 1 : 0;
-        const size_t k_end = std::min(candidates.size(), static_cast<size_t>(lo.candidates));
-        for (size_t k = static_cast<size_t>(p.loc.rank) + 1; k < k_end; ++k) {
-          const PoseEstimate e = VerifyCandidate(candidates[k], q_vecs[qi], map, geo, lo.pose);
-          if (!e.success) continue;
-          ++p.verified;
-          p.wrong += wrong_pose(e.floor_from_query) ? 1 : 0;
-        }
+        const bool wrong = wrong_pose(e.floor_from_query);
+        p.wrong += wrong ? 1 : 0;
+        const Pose2D& f = e.floor_from_query;
+        char b[512];
+        std::snprintf(b, sizeof(b),
+                      "%s,%s,%s,%zu,%s,%.6g,%d,%d,%.4g,%.4g,%.4g,%d,%.4g,%.4g,%.4g,%d,%.6f,%.6f,"
+                      "%.6f,%.6f,%.6f,%.6f\n",
+                      pr.name.c_str(), split.c_str(), q_src.name(qi).c_str(), rank + 1,
+                      db_src.name(candidates[rank].image).c_str(), candidates[rank].score,
+                      e.matches, e.inliers, e.residual_rms, e.spread, e.theta_sigma * 180.0 / M_PI,
+                      e.second_inliers, e.angle_agreement,
+                      1000.0 * std::hypot(f.x - p.truth.x, f.y - p.truth.y),
+                      std::abs(WrapAngle(f.theta - p.truth.theta)) * 180.0 / M_PI, wrong ? 1 : 0,
+                      f.x, f.y, f.theta, p.truth.x, p.truth.y, p.truth.theta);
+        p.rows += b;
+      };
+      const std::vector<PoseEstimate> each = VerifyEach(candidates, q_vecs[qi], map, geo, lo);
+      for (size_t k = 0; k < each.size(); ++k) {
+        if (each[k].success) record(k, each[k]);
       }
       if (num_rel > 0) {
         p.counted = true;
@@ -223,6 +238,7 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
       const PerQuery& p = per[qi];
       sr.verified_poses += p.verified;
       sr.wrong_verified_poses += p.wrong;
+      *verifications += p.rows;
       if (p.counted && !p.ranking.empty()) {
         top1.push_back({p.ranking[0].score, IsRelevant(p.truth, db_pose[p.ranking[0].image], geo)});
       }
@@ -354,9 +370,13 @@ void RunEval(const EvalArgs& a) {
   std::vector<std::pair<std::string, std::string>> dumps;  // (path, contents)
   try {
     std::vector<PresetResult> results;
+    std::string verifications =
+        "preset,split,query,rank,image,score,matches,inliers,residual_px,spread_px,"
+        "theta_sigma_deg,second_inliers,angle_agreement,error_mm,error_deg,wrong,x,y,theta,true_x,"
+        "true_y,true_theta\n";
     for (const auto& p : presets) {
       std::string rankings = "query,rank,image,score\n", poses = "query,x,y,theta,inliers\n";
-      results.push_back(EvalPreset(a, p, ds, splits, &rankings, &poses));
+      results.push_back(EvalPreset(a, p, ds, splits, &rankings, &poses, &verifications));
       results.back().table_row = rows[results.size() - 1];
       // One file per preset: FILE itself for a single preset, FILE.<preset>.csv otherwise.
       auto target = [&](const std::string& file) {
@@ -373,6 +393,7 @@ void RunEval(const EvalArgs& a) {
     WriteFileAtomic(staging / "results.json", ToJson(a, ds, results));
     const std::string md = ToMarkdown(a, results);
     WriteFileAtomic(staging / "summary.md", md);
+    WriteFileAtomic(staging / "verifications.csv", verifications);
     for (const auto& [path, text] : dumps) WriteFileAtomic(path, text);
     CommitStagedDirectory(staging, a.out);
     std::printf("%s", md.c_str());
@@ -414,9 +435,11 @@ void RegisterEval(CLI::App& app) {
   cmd->add_option("--timing-queries", a->timing_queries,
                   "Random queries timed against the full database")
       ->capture_default_str();
-  cmd->add_option("--candidates", a->candidates, "K: retrieved images verified by pose estimation")
-      ->capture_default_str();
-  cmd->add_option("--min-inliers", a->min_inliers, "Inliers a pose needs")->capture_default_str();
+  cmd->add_option("--candidates", a->candidates,
+                  "K: retrieved images verified by pose estimation (default: the preset's "
+                  "verification.candidates)");
+  cmd->add_option("--min-inliers", a->min_inliers,
+                  "Inliers a pose needs (default: the preset's verification.min_inliers)");
   cmd->add_option("-j,--threads", a->threads,
                   "Threads for extraction and evaluation, 0 = all cores (timing uses one)");
   cmd->add_option("--cache", a->cache, "Feature and vocabulary cache directory")

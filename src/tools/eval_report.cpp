@@ -90,7 +90,6 @@ std::string ToJson(const EvalArgs& a, const Dataset& ds, const std::vector<Prese
   j.Key("recall_n").Open('[');
   for (size_t n : kRecallN) j.Int(static_cast<long long>(n));
   j.Close(']');
-  j.Key("localization_candidates").Int(a.candidates);
   j.Close('}');
   j.Key("presets").Open('[');
   for (const auto& pr : results) {
@@ -98,6 +97,8 @@ std::string ToJson(const EvalArgs& a, const Dataset& ds, const std::vector<Prese
     j.Key("name").Str(pr.name).Key("file").Str(pr.file).Key("vocabulary").Str(pr.vocab_desc);
     j.Key("table_i_row").Str(pr.table_row);
     j.Key("configuration").Str(FormatRetrievalConfig(pr.config));
+    j.Key("verification").Str(FormatVerificationOptions(pr.config.verification));
+    j.Key("localization_candidates").Int(pr.config.verification.candidates);
     j.Key("database_images").Int(static_cast<long long>(pr.db_images));
     j.Key("splits").Open('[');
     for (const auto& s : pr.splits) {
@@ -162,8 +163,9 @@ std::string ToMarkdown(const EvalArgs& a, const std::vector<PresetResult>& resul
   std::ostringstream md;
   char b[512];
   md << "# gtbow eval: " << a.dataset << "\n\n";
-  md << "Protocol: docs/DATASET_FORMAT.md. Localization verifies the top " << a.candidates
-     << " candidates; success is a position error of at most 4.8 mm and a heading error of at "
+  md << "Protocol: docs/DATASET_FORMAT.md. Localization verifies the top K candidates "
+        "(each preset's verification.candidates); success is a position error of at most 4.8 mm "
+        "and a heading error of at "
         "most 1.5 degrees (no estimate counts as a failure). \"sep. vs disjoint\" is a "
         "diagnostic: the separation when only false results that do not overlap the query at all "
         "count as false (near misses with 1-24% overlap share real texture).\n\n";
@@ -214,7 +216,7 @@ std::string ToMarkdown(const EvalArgs& a, const std::vector<PresetResult>& resul
     md << "\nWhat a SLAM backend reads: recall at 100% precision over the queries with a relevant "
           "image, accepting the top-1 result by its BoW score, or the published loop closure (the "
           "first verified candidate) by its inliers; and every pose the top "
-       << a.candidates
+       << pr.config.verification.candidates
        << " candidates verified, with the wrong ones (beyond 4.8 mm or 1.5 deg):\n\n"
        << "| split | R@100P top-1 (BoW score) | R@100P verified (inliers) | verified poses | "
           "wrong |\n| --- | --- | --- | --- | --- |\n";

@@ -40,8 +40,8 @@ struct EvalArgs {
   std::vector<std::string> query_splits;
   size_t max_queries = 0;
   size_t timing_queries = 100;
-  int candidates = 5;
-  int min_inliers = PoseOptions{}.min_inliers;
+  int candidates = 0;   // 0: each preset's verification.candidates
+  int min_inliers = 0;  // 0: each preset's verification.min_inliers
   int threads = 0;
   std::string cache = DefaultCacheDir().string();
   bool no_cache = false;

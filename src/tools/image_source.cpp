@@ -250,7 +250,7 @@ std::unique_ptr<Vocabulary> DatasetVocabulary(const VocabularyRequest& a, const 
   // Size thresholds are learned for percentile bins only; other bins share one vocabulary.
   if (c.bow.size_binning == SizeBinning::kPercentile) key.bow.num_size_bins = c.bow.num_size_bins;
   std::string opt =
-      FormatRetrievalConfig(key) + FormatRetrievalConfig(RetrievalConfig{c.features, {}, {}});
+      FormatRetrievalConfig(key) + FormatRetrievalConfig(RetrievalConfig{c.features, {}, {}, {}});
   // The key predates bow.compact_postings, which does not touch the vocabulary: leave the line
   // out so that vocabularies cached before it stay valid (AKM training is not bit-reproducible).
   for (size_t at; (at = opt.find("  compact_postings: true\n")) != std::string::npos;) {

@@ -116,6 +116,48 @@ TEST(Localizer, GlobalFixesOfRevisitsAreWithinTheProtocolsTolerance) {
   }
 }
 
+// Issue 15: the presets' verification (descriptor matches, rotation sigma, consensus) through
+// the Localizer, as the node runs it.
+TEST(Localizer, TrustedVerificationLocalizesRevisitsAndRefusesARepeatedFloor) {
+  const Scene& s = TheScene();
+  LocalizerOptions o = Options();
+  o.retrieval.verification =
+      LoadRetrievalConfig(GTBOW_CONFIG_DIR "/high_accuracy.yaml").verification;
+  ASSERT_EQ(o.retrieval.verification.matches, MatchSource::kDescriptors);
+  Localizer loc(s.vocabulary, "test.gtvoc", o);
+  for (size_t i = 0; i < s.db_images.size(); ++i)
+    loc.Add(loc.Process(s.db_images[i]), 1000 + static_cast<int64_t>(i), s.db_poses[i]);
+  for (size_t q = 0; q < s.revisits.size(); ++q) {
+    const Localization fix = loc.Localize(loc.Process(s.revisits[q]));
+    ASSERT_TRUE(fix.success) << fix.reason;
+    const Pose2D& t = s.revisit_poses[q];
+    const Pose2D& p = fix.estimate.floor_from_query;
+    EXPECT_LT(1000 * std::hypot(p.x - t.x, p.y - t.y), 4.8);
+    EXPECT_LT(std::abs(std::remainder(p.theta - t.theta, 2 * M_PI)) * 180 / M_PI, 1.5);
+    EXPECT_LT(fix.estimate.theta_sigma, 0.4 * M_PI / 180);
+  }
+  // The same floor twice, 0.3 m apart (a copied patch, as in some of the real photographs):
+  // both copies verify equally well, so the place is ambiguous and no pose is given, and no
+  // loop closure either.
+  const size_t d = 3;  // revisit 1 is database place 3
+  loc.Add(loc.Process(s.db_images[d]), 5000,
+          Pose2D{s.db_poses[d].x + 0.3, s.db_poses[d].y, s.db_poses[d].theta});
+  const ProcessedImage img = loc.Process(s.revisits[1]);
+  const Localization fix = loc.Localize(img);
+  EXPECT_FALSE(fix.success);
+  EXPECT_NE(fix.reason.find("ambiguous place"), std::string::npos) << fix.reason;
+  const auto cands = loc.Query(img, 5, true);
+  EXPECT_EQ(LoopClosureCandidate(cands, o.retrieval.verification), -1);
+  // The paper's verification takes the first candidate that verifies, whichever copy it is.
+  o.retrieval.verification = LocalizationOptions{};
+  Localizer paper(s.vocabulary, "test.gtvoc", o);
+  for (size_t i = 0; i < s.db_images.size(); ++i)
+    paper.Add(paper.Process(s.db_images[i]), 1000 + static_cast<int64_t>(i), s.db_poses[i]);
+  paper.Add(paper.Process(s.db_images[d]), 5000,
+            Pose2D{s.db_poses[d].x + 0.3, s.db_poses[d].y, s.db_poses[d].theta});
+  EXPECT_TRUE(paper.Localize(img).success);
+}
+
 TEST(Localizer, CandidatesCarryVerifiedRelativePosesAndNoFixWithoutPoses) {
   const Scene& s = TheScene();
   const auto loc = Mapped(false);  // a SLAM backend's keyframes: no poses

@@ -5,7 +5,10 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <optional>
 #include <random>
+
+#include <opencv2/core.hpp>
 
 namespace gtbow {
 namespace {
@@ -134,6 +137,158 @@ TEST(Pose, MatchesOfMergesPairsRepeatedOverRows) {
 
 namespace gtbow {
 namespace {
+
+// Issue 15: the checks a pose must pass besides min_inliers.
+TEST(PoseChecks, ClusteredInliersLeaveTheRotationUncertainAndAreRefused) {
+  const Pose2D db{0.0, 0.0, 0.0};
+  const Pose2D query{0.004, 0.002, 0.1};
+  // 12 true matches within a 12-pixel patch, 1 px noise: the translation is pinned, the
+  // rotation is not.
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<double> u(300.0, 312.0);
+  std::normal_distribution<double> n(0.0, 1.0);
+  std::vector<PointMatch> clustered;
+  for (int i = 0; i < 12; ++i) {
+    const Vec2 q{u(rng), u(rng) - 60.0};
+    const Vec2 d = ImageFromFloor(db, kGeo, FloorFromImage(query, kGeo, q));
+    clustered.push_back({q, {d.x + n(rng), d.y + n(rng)}, 1.0});
+  }
+  PoseOptions o;
+  const PoseEstimate loose = EstimatePose(clustered, db, kGeo, o);
+  ASSERT_TRUE(loose.success) << loose.reason;
+  EXPECT_LT(loose.spread, 6.0);
+  EXPECT_GT(loose.theta_sigma, 0.5 * M_PI / 180.0);  // the covariance says what it does not know
+  o.max_theta_sigma = 0.5 * M_PI / 180.0;
+  const PoseEstimate strict = EstimatePose(clustered, db, kGeo, o);
+  EXPECT_FALSE(strict.success);
+  EXPECT_NE(strict.reason.find("rotation uncertain"), std::string::npos) << strict.reason;
+  o.max_theta_sigma = 0.0;
+  o.min_spread = 20.0;
+  const PoseEstimate clumped = EstimatePose(clustered, db, kGeo, o);
+  EXPECT_FALSE(clumped.success);
+  EXPECT_NE(clumped.reason.find("min_spread"), std::string::npos) << clumped.reason;
+  // The same number of matches spread over the image passes both checks.
+  o.max_theta_sigma = 0.5 * M_PI / 180.0;
+  const auto spread = Plant(query, db, 12, 0, 1.0, 1.0, 4);
+  const PoseEstimate good = EstimatePose(spread, db, kGeo, o);
+  ASSERT_TRUE(good.success) << good.reason;
+  EXPECT_LT(good.theta_sigma, 0.5 * M_PI / 180.0);
+  EXPECT_GT(good.spread, 50.0);
+}
+
+TEST(PoseChecks, OrientationsAndASecondHypothesisExposeARepeatedPattern) {
+  const Pose2D db{0.0, 0.0, 0.0};
+  const Pose2D truth{0.003, -0.002, 0.5};
+  const Pose2D alias{-0.01, 0.006, 0.2};  // another transform the matches also support
+  auto with_rotation = [](std::vector<PointMatch> m, double rotation) {
+    for (PointMatch& x : m) x.rotation = rotation;
+    return m;
+  };
+  // 20 true matches whose keypoints turn by the true rotation; 26 that fit another transform
+  // but whose keypoint orientations turn by something else entirely.
+  std::vector<PointMatch> m = with_rotation(Plant(truth, db, 20, 0, 0.3, 1.0, 5), 0.5);
+  for (const PointMatch& x : with_rotation(Plant(alias, db, 26, 0, 0.3, 1.0, 6), -1.9))
+    m.push_back(x);
+  PoseOptions o;
+  const PoseEstimate plain = EstimatePose(m, db, kGeo, o);
+  ASSERT_TRUE(plain.success);
+  EXPECT_NEAR(plain.floor_from_query.theta, alias.theta, 0.01);  // the larger set wins
+  EXPECT_LT(plain.angle_agreement, 0.1);
+  o.angle_tolerance = 15.0 * M_PI / 180.0;
+  const PoseEstimate oriented = EstimatePose(m, db, kGeo, o);
+  ASSERT_TRUE(oriented.success) << oriented.reason;
+  EXPECT_NEAR(oriented.floor_from_query.theta, truth.theta, 0.01);
+  EXPECT_NEAR(oriented.floor_from_query.x, truth.x, 0.0002);
+  EXPECT_EQ(oriented.angle_agreement, 1.0);
+  // Without orientations the two transforms are equally plausible: a second hypothesis with
+  // over half the best's inliers refuses the pose.
+  o.angle_tolerance = 0.0;
+  o.max_second_ratio = 0.5;
+  const PoseEstimate ambiguous = EstimatePose(m, db, kGeo, o);
+  EXPECT_FALSE(ambiguous.success);
+  EXPECT_GE(ambiguous.second_inliers, 18);
+  EXPECT_NE(ambiguous.reason.find("ambiguous"), std::string::npos) << ambiguous.reason;
+  // One pattern alone is not ambiguous.
+  const PoseEstimate single =
+      EstimatePose(with_rotation(Plant(truth, db, 20, 30, 0.3, 1.0, 7), 0.5), db, kGeo, o);
+  EXPECT_TRUE(single.success) << single.reason;
+  EXPECT_LT(single.second_inliers, 5);
+}
+
+TEST(PoseChecks, ConsensusRefusesDisagreeingCandidatesOrTheWholePlace) {
+  auto est = [](int inliers) {
+    PoseEstimate e;
+    e.success = true;
+    e.inliers = inliers;
+    return e;
+  };
+  const Pose2D p{1.0, 2.0, 0.3};
+  const std::vector<std::optional<Pose2D>> poses = {
+      Pose2D{1.003, 2.0, 0.31},  // agrees with the best (within 10 mm and 3 degrees)
+      p,                         // the best: 30 inliers
+      Pose2D{1.32, 2.0, 0.3},    // 320 mm away: the floor repeats itself
+      std::nullopt};             // no pose to compare: left alone
+  const std::vector<PoseEstimate> base = {est(25), est(30), est(12), est(8)};
+  LocalizationOptions o;
+  auto run = [&](double ratio) {
+    o.max_conflict_ratio = ratio;
+    std::vector<PoseEstimate> e = base;
+    ResolveConflicts(poses, &e, o);
+    return e;
+  };
+  auto e = run(0.0);  // off
+  for (const PoseEstimate& x : e) EXPECT_TRUE(x.success);
+  e = run(0.5);  // the disagreeing pose has 12 < 15 inliers: only it is refused
+  EXPECT_TRUE(e[0].success);
+  EXPECT_TRUE(e[1].success);
+  EXPECT_FALSE(e[2].success);
+  EXPECT_NE(e[2].reason.find("disagrees with candidate 2"), std::string::npos) << e[2].reason;
+  EXPECT_TRUE(e[3].success);
+  e = run(0.4);  // 12 >= 0.4 x 30: ambiguous, every comparable pose refused
+  EXPECT_FALSE(e[0].success);
+  EXPECT_FALSE(e[1].success);
+  EXPECT_FALSE(e[2].success);
+  EXPECT_NE(e[1].reason.find("ambiguous place"), std::string::npos) << e[1].reason;
+  EXPECT_TRUE(e[3].success);
+}
+
+TEST(PoseChecks, DescriptorMatchesAreMutualNearestNeighboursPassingTheRatioTest) {
+  std::mt19937 rng(8);
+  const int n = 40;
+  cv::Mat q(n, 32, CV_8U), d(n + 10, 32, CV_8U);
+  cv::randu(q, 0, 256);
+  cv::randu(d, 0, 256);
+  std::vector<Keypoint> qk(n), dk(n + 10);
+  for (int i = 0; i < n; ++i) {
+    qk[i].x = static_cast<float>(i);
+    qk[i].angle = 0.1f;
+  }
+  for (int j = 0; j < n + 10; ++j) {
+    dk[j].x = static_cast<float>(100 + j);
+    dk[j].angle = 0.4f;
+  }
+  // Database row 2i + 1 (i < 20) is query row i with 10 bits flipped; query rows 20.. have no
+  // partner (random rows are ~128 bits from everything).
+  for (int i = 0; i < 20; ++i) {
+    q.row(i).copyTo(d.row(2 * i + 1));
+    for (int b = 0; b < 10; ++b) d.at<uint8_t>(2 * i + 1, (b * 3 + i) % 32) ^= 1u << (b % 8);
+  }
+  const auto m = DescriptorMatches(qk, q, dk, d, 0.8);
+  ASSERT_EQ(m.size(), 20u);
+  for (const PointMatch& x : m) {
+    const int i = static_cast<int>(x.query.x);
+    EXPECT_EQ(x.database.x, 100 + 2 * i + 1);
+    EXPECT_NEAR(x.rotation, 0.3, 1e-6);
+    EXPECT_EQ(x.weight, 1.0);
+  }
+  // A second database row as close to query row 0 (10 other bits flipped): the ratio test
+  // refuses the ambiguous match.
+  q.row(0).copyTo(d.row(0));
+  for (int b = 0; b < 10; ++b) d.at<uint8_t>(0, (b * 3 + 1) % 32) ^= 1u << ((b + 4) % 8);
+  EXPECT_EQ(DescriptorMatches(qk, q, dk, d, 0.8).size(), 19u);
+  std::vector<Keypoint> short_keypoints(3);
+  EXPECT_THROW(DescriptorMatches(short_keypoints, q, dk, d, 0.8), std::invalid_argument);
+}
 
 TEST(Localize, AQueryWithoutFeaturesGetsNoEstimateAndAReason) {
   BowOptions o;

@@ -75,6 +75,8 @@ struct BowVector {
   std::vector<KeypointEntry> keypoints;  // sorted by row
   std::vector<float> angles;             // keypoint orientations, radians
   std::vector<Keypoint> source;          // the keypoints themselves (for pose estimation)
+  cv::Mat source_descriptors;            // their descriptors (shared, not copied), for
+                                         // verification from descriptor matches
 };
 
 class BowEncoder {

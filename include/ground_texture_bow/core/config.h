@@ -9,6 +9,7 @@
 
 #include "ground_texture_bow/core/bow.h"
 #include "ground_texture_bow/core/features.h"
+#include "ground_texture_bow/core/pose.h"
 #include "ground_texture_bow/core/vocabulary.h"
 
 namespace gtbow {
@@ -17,13 +18,16 @@ struct RetrievalConfig {
   FeatureOptions features;
   VocabularyOptions vocabulary;
   BowOptions bow;
+  // How retrieved candidates are verified (section `verification`): K, RANSAC and the checks a
+  // pose must pass. These shape the poses, not the map, so a map file does not record them.
+  LocalizationOptions verification;
 
   // Checks every part and their combination (e.g. r <= 1 for an HKM vocabulary).
   void Check() const;
 };
 
-// Parses the YAML form: sections `features`, `vocabulary` and `bow` whose keys are the option
-// names. Missing keys keep their defaults; unknown sections or keys and bad values throw
+// Parses the YAML form: sections `features`, `vocabulary`, `bow` and `verification` whose keys are
+// the option names. Missing keys keep their defaults; unknown sections or keys and bad values throw
 // std::runtime_error naming `source`, the line and the key.
 RetrievalConfig ParseRetrievalConfig(const std::string& yaml, const std::string& source);
 RetrievalConfig LoadRetrievalConfig(const std::filesystem::path& path);
@@ -33,6 +37,8 @@ std::string FormatRetrievalConfig(const RetrievalConfig& config);
 // Those keys, as "section.key", in the order written (one table in config.cpp drives the
 // parser, FormatRetrievalConfig and RetrievalConfigDifference).
 std::vector<std::string> RetrievalConfigKeys();
+// The `verification` section (every key; a map file does not record them).
+std::string FormatVerificationOptions(const LocalizationOptions& verification);
 // The `features` section alone (what Vocabulary::extractor() records).
 std::string FormatFeatureOptions(const FeatureOptions& features);
 // Throws std::invalid_argument naming `vocabulary_name` and the differing keys when the

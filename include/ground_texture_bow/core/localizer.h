@@ -33,8 +33,8 @@
 namespace gtbow {
 
 struct LocalizerOptions {
-  RetrievalConfig retrieval;          // features, word search and BoW options (a preset)
-  LocalizationOptions localization;   // K candidates verified, RANSAC options
+  RetrievalConfig retrieval;          // a preset: features, word search, BoW options and
+                                      // verification (K candidates, RANSAC, checks)
   double meters_per_pixel = 0.00025;  // ground sampling distance, metres per pixel (> 0)
   int threads = 1;                    // threads one image may use: descriptor assignment and
                                       // the query's blocks (1..64); answers do not depend on it
@@ -77,6 +77,12 @@ struct Candidate {
   PoseEstimate relative;      // match_from_query (when verification was asked for)
   std::vector<Vec2> inliers;  // query pixels of the verified matches (for overlays)
 };
+
+// The candidate a loop closure is published for: the first verified one, or with the
+// consensus on (LocalizationOptions::max_conflict_ratio) the verified one with the most inliers;
+// -1 when none verified.
+int LoopClosureCandidate(const std::vector<Candidate>& candidates,
+                         const LocalizationOptions& options);
 
 class Localizer {
  public:
@@ -134,9 +140,11 @@ class Localizer {
 
  private:
   ImageGeometry GeometryOf(int width, int height) const;
-  std::vector<Candidate> QueryLocked(const BowVector& bow, const std::vector<Keypoint>& keypoints,
-                                     int width, int height, size_t k, bool verify,
-                                     uint32_t exclude_from, uint32_t exclude_to) const;
+  // The keyframes' keypoints and descriptors, each pose at the origin (relative poses); under
+  // mutex_.
+  MapAccess RelativeAccess() const;
+  std::vector<Candidate> QueryLocked(const BowVector& bow, int width, int height, size_t k,
+                                     bool verify, uint32_t exclude_from, uint32_t exclude_to) const;
 
   std::shared_ptr<Vocabulary> vocabulary_;
   std::string vocabulary_path_;

@@ -11,6 +11,8 @@
 #include <array>
 #include <cstdint>
 #include <functional>
+#include <limits>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -30,6 +32,23 @@ struct PoseOptions {
   int refine_iterations = 3;  // least-squares refinement rounds (inliers re-selected)
   uint64_t seed = 1;          // sampling seed (estimates are deterministic)
 
+  // Checks a pose must pass besides min_inliers (issue 15: a wrong pose must be as rare as the
+  // math allows). Each is off at 0, the paper's RANSAC alone.
+  // An inlier must also turn its keypoint's orientation by the estimated rotation, within this
+  // (radians; matches without orientations are exempt). Used inside RANSAC, so it shapes which
+  // hypothesis wins, not only whether it is accepted.
+  double angle_tolerance = 0.0;
+  // Inliers needed grow with the matches: at least this fraction of them.
+  double min_inlier_fraction = 0.0;
+  // The inliers must span the image: the smaller principal standard deviation of their query
+  // pixels at least this (pixels). Clustered inliers leave the rotation unconstrained.
+  double min_spread = 0.0;
+  // The rotation's standard deviation from the covariance at most this (radians).
+  double max_theta_sigma = 0.0;
+  // A second hypothesis, RANSAC over the matches the best one leaves out, with at least this
+  // fraction of the best's inliers makes the pose ambiguous: refused.
+  double max_second_ratio = 0.0;
+
   // Throws std::invalid_argument naming the first bad field.
   void Check() const;
 };
@@ -40,6 +59,9 @@ struct PointMatch {
   Vec2 query;
   Vec2 database;
   double weight = 1.0;
+  // The change of the keypoint's orientation from the query to the database image (radians);
+  // NaN when unknown. A rigid map turns it by its rotation.
+  double rotation = std::numeric_limits<double>::quiet_NaN();
 };
 
 // The rigid transform taking centred query pixels to centred database pixels:
@@ -59,6 +81,14 @@ struct PoseEstimate {
   // Covariance of (x, y, theta) of floor_from_query, row-major: m^2, m rad, rad^2.
   std::array<double, 9> covariance{};
   std::vector<int> inlier_indices;  // into the matches given
+  // Evidence of the estimate (filled whenever RANSAC found a hypothesis, also when a check
+  // refused it), for a backend that weighs loop closures and for gtbow eval's diagnostics.
+  int matches = 0;             // matches given
+  double spread = 0.0;         // pixels: smaller principal standard deviation of the inliers
+  double theta_sigma = 0.0;    // radians: standard deviation of the rotation (covariance)
+  int second_inliers = 0;      // inliers of the best other hypothesis (max_second_ratio)
+  double angle_agreement = 0;  // inliers whose orientation change agrees within 15 degrees
+                               // (of those with orientations; 1 when none has one)
 };
 
 // Estimates the transform from `matches` and composes it with `floor_from_database`.
@@ -71,9 +101,31 @@ std::vector<PointMatch> MatchesOf(const QueryResult& result,
                                   const std::vector<Keypoint>& query_keypoints,
                                   const std::vector<Keypoint>& database_keypoints);
 
+// Where verification takes its matches from.
+enum class MatchSource {
+  kWords,        // the retrieval's own: pairs of the winning orientation bin (paper §III-C)
+  kDescriptors,  // the descriptors of the pair, nearest neighbours with a ratio test
+};
+MatchSource ParseMatchSource(const std::string& name);  // "words" | "descriptors"
+std::string MatchSourceName(MatchSource source);
+
 struct LocalizationOptions {
   int candidates = 5;  // K: retrieved images verified in rank order
   PoseOptions pose;
+  MatchSource matches = MatchSource::kWords;
+  // kDescriptors: a query keypoint's nearest database descriptor is a match when it is closer
+  // than this fraction of the second nearest (Lowe's ratio test) and the two are mutual
+  // nearest neighbours.
+  double descriptor_ratio = 0.8;
+  // Consensus among the K candidates (0 = off: the first candidate that verifies gives the
+  // pose, the paper's procedure). On: every candidate is verified and their poses compared with
+  // the best supported one (most inliers); a pose that disagrees with it (beyond
+  // consensus_distance or consensus_angle) is refused, and when the strongest disagreeing pose
+  // has at least max_conflict_ratio x the best's inliers the place is ambiguous (a floor that
+  // repeats itself) and every pose is refused. The best supported pose is the answer.
+  double max_conflict_ratio = 0.0;
+  double consensus_distance = 0.01;  // metres
+  double consensus_angle = 0.0524;   // radians (3 degrees)
 
   void Check() const;
 };
@@ -94,21 +146,46 @@ struct Localization {
 // Where the localizer finds a database image's keypoints and pose.
 struct MapAccess {
   std::function<const std::vector<Keypoint>&(uint32_t image)> keypoints;
+  // Its descriptors (row i: keypoint i); needed only for MatchSource::kDescriptors.
+  std::function<cv::Mat(uint32_t image)> descriptors;
   std::function<Pose2D(uint32_t image)> pose;
   // Optional: why an image cannot give a pose ("no pose", "other image size"); empty when it
   // can. Such candidates are skipped.
   std::function<std::string(uint32_t image)> unusable;
 };
 
-// Verifies one retrieved candidate: a pose from its matches with the map image's keypoints
-// (`inlier_pixels`, when given, receives the query pixels of the inliers).
+// Matches of two images' descriptors (CV_8U: Hamming; CV_32F: L2): mutual nearest neighbours
+// passing the ratio test, with their keypoints' pixels and orientation changes (weight 1).
+std::vector<PointMatch> DescriptorMatches(const std::vector<Keypoint>& query_keypoints,
+                                          const cv::Mat& query_descriptors,
+                                          const std::vector<Keypoint>& database_keypoints,
+                                          const cv::Mat& database_descriptors, double ratio);
+
+// Verifies one retrieved candidate: a pose from its matches (options.matches says which) with
+// the map image (`inlier_pixels`, when given, receives the query pixels of the inliers).
+// Descriptor matching needs query.source_descriptors and map.descriptors.
 PoseEstimate VerifyCandidate(const QueryResult& candidate, const BowVector& query,
                              const MapAccess& map, const ImageGeometry& geometry,
-                             const PoseOptions& options,
+                             const LocalizationOptions& options,
                              std::vector<Vec2>* inlier_pixels = nullptr);
 
-// Verifies retrieved candidates (with their matches) in order until one gives a pose with
-// enough inliers (VerifyCandidate).
+// Applies LocalizationOptions::max_conflict_ratio's consensus to estimates[k] (verified or
+// not), whose poses in one common frame are poses[k] (nullopt: not comparable, left alone).
+// Refused estimates get success = false and a reason naming the conflict.
+void ResolveConflicts(const std::vector<std::optional<Pose2D>>& poses,
+                      std::vector<PoseEstimate>* estimates, const LocalizationOptions& options);
+
+// Verifies each of the top K candidates (consensus applied when on); `inlier_pixels`, when
+// given, receives the query pixels of each one's inliers.
+std::vector<PoseEstimate> VerifyEach(const std::vector<QueryResult>& candidates,
+                                     const BowVector& query, const MapAccess& map,
+                                     const ImageGeometry& geometry,
+                                     const LocalizationOptions& options,
+                                     std::vector<std::vector<Vec2>>* inlier_pixels = nullptr);
+
+// Verifies retrieved candidates (with their matches): without consensus in order until one
+// gives a pose with enough inliers; with it, all of them (VerifyEach), and the best supported
+// consistent pose is the answer.
 Localization VerifyCandidates(const std::vector<QueryResult>& candidates, const BowVector& query,
                               const MapAccess& map, const ImageGeometry& geometry,
                               const LocalizationOptions& options);

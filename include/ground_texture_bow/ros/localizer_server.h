@@ -38,6 +38,7 @@
 #include "ground_texture_bow/SaveMap.h"
 #include "ground_texture_bow/SetMode.h"
 #include "ground_texture_bow/core/localizer.h"
+#include "ground_texture_bow/core/temporal_consistency.h"
 
 namespace gtbow_ros {
 
@@ -69,6 +70,8 @@ struct ServerOptions {
   double localized_timeout = 2.0;       // seconds a fix counts as "localized" in diagnostics
   double planar_variance = 1e-9;        // variance on z, roll and pitch of ~pose
   double camera_height = 0.0;           // for markers only, metres
+  // ~temporal_consistency (N), ~temporal_distance, ~temporal_angle, ~temporal_max_motion.
+  gtbow::TemporalConsistencyOptions temporal;
 
   // The node's defaults for the engine's options: 2 threads, 0.25 mm per pixel, K = 5,
   // 6 inliers.
@@ -116,8 +119,8 @@ class LocalizerServer {
                                                const std::string& target, bool warn);
   bool IsKeyframe(const std::optional<gtbow::Pose2D>& pose);
   void PublishFix(const gtbow::Localization& fix, const std_msgs::Header& header);
-  void PublishLoopClosures(const std::vector<gtbow::Candidate>& cands, uint32_t query_id,
-                           const std_msgs::Header& header);
+  void PublishLoopClosure(const gtbow::Candidate& closure, uint32_t query_id,
+                          const std_msgs::Header& header);
   // The camera image with its keypoints (green) and the verified matches of the winning
   // keyframe (red), captioned with the keyframe and inlier count.
   void PublishDebugImage(const cv::Mat& floor_image, const gtbow::ProcessedImage& img,
@@ -173,7 +176,8 @@ class LocalizerServer {
 
   std::atomic<Mode> mode_;
   std::atomic<uint64_t> received_{0}, processed_{0}, dropped_{0}, rejected_{0}, debug_images_{0},
-      rejected_requests_{0}, missing_tf_{0}, fixes_{0}, loop_closures_{0}, failed_fixes_{0};
+      rejected_requests_{0}, missing_tf_{0}, fixes_{0}, loop_closures_{0}, failed_fixes_{0},
+      held_closures_{0};
   std::atomic<double> last_processing_ms_{0.0};
   std::atomic<double> input_rate_hz_{0.0};
 
@@ -182,6 +186,7 @@ class LocalizerServer {
   Pending pending_;    // guarded by slot_mutex_
   bool stop_ = false;  // guarded by slot_mutex_
   std::thread worker_;
+  gtbow::TemporalConsistency temporal_{gtbow::TemporalConsistencyOptions{}};  // worker only
 
   std::mutex state_mutex_;
   std::optional<gtbow::Pose2D> last_keyframe_pose_;  // guarded by state_mutex_
