@@ -245,11 +245,11 @@ ClosureState PoseGraph::AddClosure(const Closure& closure) {
   s.query_dist = Interpolate(closure.query_ns).dist;
   closures_.push_back(s);
   StoredClosure& added = closures_.back();
+  ++pending_;  // until accepted
   if (!options_.consistency_check) {
     Accept(&added);
     return added.state;
   }
-  ++pending_;
   for (size_t i = 0; i + 1 < closures_.size(); ++i) {
     StoredClosure& other = closures_[i];
     if (other.state == ClosureState::kRejected) continue;

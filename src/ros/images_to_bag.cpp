@@ -132,6 +132,10 @@ void RunImagesToBag(const BagArgs& a) {
         tf2_msgs::TFMessage tf;
         tf.transforms.push_back(mount);
         auto header = boost::make_shared<ros::M_string>();
+        // A custom connection header replaces rosbag's own: it needs the type fields too.
+        (*header)["type"] = ros::message_traits::datatype<tf2_msgs::TFMessage>();
+        (*header)["md5sum"] = ros::message_traits::md5sum<tf2_msgs::TFMessage>();
+        (*header)["message_definition"] = ros::message_traits::definition<tf2_msgs::TFMessage>();
         (*header)["latching"] = "1";
         (*header)["callerid"] = "/gtbow_images_to_bag";
         bag.write("/tf_static", ros::Time(a.start), tf, header);

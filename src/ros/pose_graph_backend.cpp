@@ -12,6 +12,7 @@
 //
 // Run the localizer in mapping mode with its ~map_frame set to the odometry frame: its
 // keyframe poses are then odometry, and its closures relative poses between image stamps.
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <deque>
@@ -289,8 +290,16 @@ class Backend {
     Optimize();
     if (publish_tf_ && graph_.HasOdometry() && !odom_frame_.empty()) {
       const Pose2D m = graph_.MapFromOdom();
+      // TF ignores a repeated stamp: once the odometry stops, a changed correction goes out
+      // 1 ms after the previous one, an unchanged one not at all.
+      const int64_t last = graph_.LastStamp();
+      const bool changed =
+          !last_tf_ || last_tf_->x != m.x || last_tf_->y != m.y || last_tf_->theta != m.theta;
+      if (last <= last_tf_stamp_ && !changed) return;
+      last_tf_stamp_ = std::max(last, last_tf_stamp_ + 1000000);
+      last_tf_ = m;
       geometry_msgs::TransformStamped t;
-      t.header.stamp.fromNSec(static_cast<uint64_t>(graph_.LastStamp()));
+      t.header.stamp.fromNSec(static_cast<uint64_t>(last_tf_stamp_));
       t.header.frame_id = map_frame_;
       t.child_frame_id = odom_frame_;
       t.transform.translation.x = m.x;
@@ -395,7 +404,8 @@ class Backend {
   std::string map_frame_, odom_frame_, base_frame_, camera_frame_, trajectory_csv_;
   bool publish_tf_ = true;
   double optimize_rate_ = 1.0, closure_wait_ = 5.0;
-  std::optional<Pose2D> fixed_offset_, camera_offset_;
+  std::optional<Pose2D> fixed_offset_, camera_offset_, last_tf_;
+  int64_t last_tf_stamp_ = 0;
   std::map<std::string, Pose2D> offsets_;
   std::deque<Waiting> waiting_;
   size_t received_ = 0, rejected_input_ = 0, bad_odometry_ = 0, last_downweighted_ = 0;
