@@ -14,8 +14,11 @@ PACKAGES=(
   python3-rosbag python3-roslaunch python3-rosmaster
   libdiagnostic-updater-dev libvisualization-msgs-dev libnodeletlib-tools
   python3-geometry-msgs python3-sensor-msgs python3-std-msgs python3-tf2-msgs
+  libnav-msgs-dev
   # core libraries
   libopencv-dev libflann-dev liblz4-dev libeigen3-dev libyaml-cpp-dev libcli11-dev
+  # the pose-graph backend (src/backend)
+  libceres-dev
   # tests and plots
   libgtest-dev libgmock-dev python3-matplotlib
   # make fuzz: clang with libFuzzer and the sanitizer runtimes; .ci/run: clang-format

@@ -2,6 +2,13 @@
 // recorded: the images of one split on a camera topic, in sequence order, and the camera's
 // ground-truth pose as TF (map -> camera optical frame) and as a PoseStamped topic.
 //
+// With --odometry (a drive from `gtbow synth --drive`), the robot's wheel odometry replaces the
+// ground-truth TF: nav_msgs/Odometry on --odom-topic and TF odom -> base_link at each image
+// stamp, plus a static (latched /tf_static) base_link -> camera optical frame from
+// --camera-offset; the ground truth stays on the PoseStamped topic only (TF allows one parent
+// per frame). base_link lies on the floor (z = 0) and the odometry CSV holds the camera's
+// footprint, so the base's odometry pose is odom_from_camera * camera_offset^-1.
+//
 // The camera is a downward optical frame (x = image right, y = image down, z down onto the
 // floor), so it sees the floor mirrored with respect to the dataset's floor frame (which, like
 // the map, has z up): images are stored flipped upside down. The localizer flips them back
@@ -11,8 +18,11 @@
 #include <filesystem>
 #include <memory>
 #include <string>
+#include <unordered_map>
+#include <vector>
 
 #include <geometry_msgs/PoseStamped.h>
+#include <nav_msgs/Odometry.h>
 #include <rosbag/bag.h>
 #include <sensor_msgs/Image.h>
 #include <sensor_msgs/image_encodings.h>
@@ -46,6 +56,11 @@ struct BagArgs {
   size_t max_images = 0;
   bool no_tf = false;
   bool quiet = false;
+  std::string odometry;  // drive_odometry.csv (poses.csv columns): odometry instead of truth TF
+  std::string odom_frame = "odom";
+  std::string base_frame = "base_link";
+  std::string odom_topic = "/odom";
+  std::vector<double> camera_offset = {0.0, 0.0, 0.0};  // camera footprint in base_link
 };
 
 sensor_msgs::Image ToMessage(const cv::Mat& gray_floor_view, const std::string& encoding) {
@@ -79,6 +94,23 @@ void RunImagesToBag(const BagArgs& a) {
   if (!(a.rate > 0)) throw std::invalid_argument("--rate must be > 0");
   if (!(a.start > 0)) throw std::invalid_argument("--start must be > 0 (ROS time 0 means unset)");
   const size_t n = a.max_images > 0 ? std::min(a.max_images, names.size()) : names.size();
+  if (a.camera_offset.size() != 3) {
+    throw std::invalid_argument("--camera-offset takes X Y YAW (metres, radians)");
+  }
+  const Pose2D base_from_camera{a.camera_offset[0], a.camera_offset[1], a.camera_offset[2]};
+  std::unordered_map<std::string, Pose2D> odometry;
+  if (!a.odometry.empty()) {
+    if (a.no_tf) throw std::invalid_argument("--odometry publishes TF: it excludes --no-tf");
+    for (const auto& r : ParsePosesCsv(ReadFile(a.odometry), a.odometry)) {
+      odometry[r.image] = r.pose;
+    }
+    for (size_t i = 0; i < n; ++i) {
+      if (odometry.count(names[i]) == 0) {
+        throw std::invalid_argument(a.odometry + " has no odometry pose for image " + names[i] +
+                                    " of split '" + a.split + "'");
+      }
+    }
+  }
   const fs::path out = a.out;
   const fs::path tmp = out.string() + ".partial";
   {
@@ -90,6 +122,24 @@ void RunImagesToBag(const BagArgs& a) {
     }
     ProgressBar bar("images-to-bag", n, !a.quiet);
     try {
+      if (!odometry.empty()) {
+        // Latched, like a robot_state_publisher's: rosbag play republishes it latched.
+        geometry_msgs::TransformStamped mount;
+        mount.header.stamp = ros::Time(a.start);
+        mount.header.frame_id = a.base_frame;
+        mount.child_frame_id = a.frame;
+        mount.transform = gtbow_ros::TransformFromFootprint(base_from_camera, a.height);
+        tf2_msgs::TFMessage tf;
+        tf.transforms.push_back(mount);
+        auto header = boost::make_shared<ros::M_string>();
+        // A custom connection header replaces rosbag's own: it needs the type fields too.
+        (*header)["type"] = ros::message_traits::datatype<tf2_msgs::TFMessage>();
+        (*header)["md5sum"] = ros::message_traits::md5sum<tf2_msgs::TFMessage>();
+        (*header)["message_definition"] = ros::message_traits::definition<tf2_msgs::TFMessage>();
+        (*header)["latching"] = "1";
+        (*header)["callerid"] = "/gtbow_images_to_bag";
+        bag.write("/tf_static", ros::Time(a.start), tf, header);
+      }
       for (size_t i = 0; i < n; ++i) {
         const ros::Time stamp(a.start + static_cast<double>(i) / a.rate);
         sensor_msgs::Image img = ToMessage(ds.LoadGray(names[i]), a.encoding);
@@ -102,7 +152,26 @@ void RunImagesToBag(const BagArgs& a) {
         t.header.frame_id = a.map_frame;
         t.child_frame_id = a.frame;
         t.transform = gtbow_ros::TransformFromFootprint(pose, a.height);
-        if (!a.no_tf) {
+        if (!odometry.empty()) {
+          const Pose2D base = Compose(odometry.at(names[i]), Inverse(base_from_camera));
+          nav_msgs::Odometry odom;
+          odom.header.stamp = stamp;
+          odom.header.frame_id = a.odom_frame;
+          odom.child_frame_id = a.base_frame;
+          odom.pose.pose.position.x = base.x;
+          odom.pose.pose.position.y = base.y;
+          odom.pose.pose.orientation = gtbow_ros::QuaternionFromYaw(base.theta);
+          bag.write(a.odom_topic, stamp, odom);
+          geometry_msgs::TransformStamped ob;
+          ob.header = odom.header;
+          ob.child_frame_id = a.base_frame;
+          ob.transform.translation.x = base.x;
+          ob.transform.translation.y = base.y;
+          ob.transform.rotation = odom.pose.pose.orientation;
+          tf2_msgs::TFMessage tf;
+          tf.transforms.push_back(ob);
+          bag.write("/tf", stamp, tf);
+        } else if (!a.no_tf) {
           tf2_msgs::TFMessage tf;
           tf.transforms.push_back(t);
           bag.write("/tf", stamp, tf);
@@ -128,12 +197,15 @@ void RunImagesToBag(const BagArgs& a) {
   }
   fs::rename(tmp, out);
   const ImageGeometry& g = ds.info().geometry;
+  const std::string tf_desc =
+      odometry.empty() ? a.map_frame + " -> " + a.frame + (a.no_tf ? " (omitted: --no-tf)" : "")
+                       : a.odom_frame + " -> " + a.base_frame + " (odometry, also on " +
+                             a.odom_topic + ") -> " + a.frame + " (static)";
   std::printf(
-      "%zu images of split '%s' written to %s\n  %s (%s), TF %s -> %s%s, ground truth %s\n"
+      "%zu images of split '%s' written to %s\n  %s (%s), TF %s, ground truth %s\n"
       "  %.1f Hz from t = %.1f s; %dx%d pixels, meters_per_pixel %.6g\n",
-      n, a.split.c_str(), out.c_str(), a.topic.c_str(), a.encoding.c_str(), a.map_frame.c_str(),
-      a.frame.c_str(), a.no_tf ? " (omitted: --no-tf)" : "", a.truth_topic.c_str(), a.rate, a.start,
-      g.width, g.height, g.meters_per_pixel);
+      n, a.split.c_str(), out.c_str(), a.topic.c_str(), a.encoding.c_str(), tf_desc.c_str(),
+      a.truth_topic.c_str(), a.rate, a.start, g.width, g.height, g.meters_per_pixel);
 }
 
 }  // namespace
@@ -163,6 +235,21 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   cmd->add_option("--max-images", a->max_images, "Write at most this many images (0 = all)");
   cmd->add_flag("--no-tf", a->no_tf, "Omit /tf (a robot that must localize globally)");
+  cmd->add_option("--odometry", a->odometry,
+                  "Odometry CSV (poses.csv columns, e.g. drive_odometry.csv from gtbow synth "
+                  "--drive): publish it as nav_msgs/Odometry and TF odom -> base_link, with a "
+                  "static base_link -> camera transform, instead of the ground-truth TF")
+      ->check(CLI::ExistingFile);
+  cmd->add_option("--odom-frame", a->odom_frame, "Odometry frame (--odometry)")
+      ->capture_default_str();
+  cmd->add_option("--base-frame", a->base_frame, "Robot base frame (--odometry)")
+      ->capture_default_str();
+  cmd->add_option("--odom-topic", a->odom_topic, "nav_msgs/Odometry topic (--odometry)")
+      ->capture_default_str();
+  cmd->add_option("--camera-offset", a->camera_offset,
+                  "The camera's footprint in the base frame: X Y YAW (metres, radians; "
+                  "--odometry)")
+      ->expected(3);
   cmd->add_flag("-q,--quiet", a->quiet, "No progress bar");
   try {
     app.parse(argc, argv);

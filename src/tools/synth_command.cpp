@@ -145,7 +145,29 @@ void RegisterSynth(CLI::App& app) {
   cmd->add_option("--motion-blur", o.camera.motion_blur,
                   "Longest motion blur along the driving direction, pixels")
       ->capture_default_str();
-  cmd->add_option("--only", o.only, "Render only these splits: train, database, queries")
+  cmd->add_option("--drive", o.drive_length,
+                  "Also render a continuous drive of this many metres (split 'drive'): laps "
+                  "around the database area, plus drive_odometry.csv, wheel odometry with the "
+                  "--odom-* noise model (docs/DATASET_FORMAT.md)")
+      ->capture_default_str();
+  cmd->add_option("--drive-spacing", o.drive_spacing, "Metres between drive images")
+      ->capture_default_str();
+  cmd->add_option("--odom-scale-bias", o.odometry.scale_bias,
+                  "Odometry: systematic distance scale error, fraction")
+      ->capture_default_str();
+  cmd->add_option("--odom-scale-noise", o.odometry.scale_noise,
+                  "Odometry: per-step distance scale noise, fraction (sd)")
+      ->capture_default_str();
+  cmd->add_option("--odom-turn-bias", o.odometry.turn_bias,
+                  "Odometry: systematic turn scale error, fraction")
+      ->capture_default_str();
+  cmd->add_option("--odom-heading-bias", o.odometry.heading_bias,
+                  "Odometry: heading drift, rad per metre driven")
+      ->capture_default_str();
+  cmd->add_option("--odom-heading-noise", o.odometry.heading_noise,
+                  "Odometry: random heading walk, rad per sqrt(metre) (sd)")
+      ->capture_default_str();
+  cmd->add_option("--only", o.only, "Render only these splits: train, database, queries, drive")
       ->delimiter(',');
   cmd->add_flag("--ideal", args->ideal, "No sensor effects (noise, blur, vignetting, jitter)");
   cmd->add_option("-j,--threads", o.threads, "Worker threads, 0 = all cores")

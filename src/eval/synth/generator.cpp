@@ -30,6 +30,7 @@ namespace {
 
 constexpr uint64_t kDatabaseVisit = 1;
 constexpr uint64_t kTrainVisit = 2;
+constexpr uint64_t kDriveVisit = 3;
 constexpr uint64_t kFirstQueryVisit = 100;
 
 // FNV-1a: a stable string hash (std::hash may differ between standard libraries).
@@ -86,8 +87,24 @@ Pose2D RandomPose(CellRng& rng, double x0, double x1, double y0, double y1) {
 
 }  // namespace
 
+void OdometryNoise::Check() const {
+  auto need = [](bool ok, const std::string& what) {
+    if (!ok) throw std::invalid_argument(what);
+  };
+  need(std::isfinite(scale_bias) && std::abs(scale_bias) < 0.5,
+       "odometry scale_bias must be a fraction in (-0.5, 0.5)");
+  need(std::isfinite(scale_noise) && scale_noise >= 0 && scale_noise < 0.5,
+       "odometry scale_noise must be in [0, 0.5)");
+  need(std::isfinite(turn_bias) && std::abs(turn_bias) < 0.5,
+       "odometry turn_bias must be a fraction in (-0.5, 0.5)");
+  need(std::isfinite(heading_bias), "odometry heading_bias must be finite (rad/m)");
+  need(std::isfinite(heading_noise) && heading_noise >= 0,
+       "odometry heading_noise must be >= 0 (rad/sqrt(m))");
+}
+
 void SynthOptions::Check() const {
   camera.Check();
+  odometry.Check();
   auto need = [](bool ok, const std::string& what) {
     if (!ok) throw std::invalid_argument(what);
   };
@@ -106,14 +123,20 @@ void SynthOptions::Check() const {
   need(position_jitter >= 0, "position_jitter must be >= 0");
   need(heading_jitter >= 0, "heading_jitter must be >= 0");
   need(threads >= 0, "threads must be >= 0");
+  need(std::isfinite(drive_length) && drive_length >= 0 && drive_length <= 1e4,
+       "drive_length must be in [0, 10000] metres");
+  need(std::isfinite(drive_spacing) && drive_spacing >= 1e-4,
+       "drive_spacing must be >= 0.0001 metres");
+  need(drive_length / drive_spacing <= 5e6, "the drive would exceed 5 million images");
+  need(drive_length == 0 || photos.empty(), "a drive needs a synthetic floor, not --photo");
   need(photo_meters_per_pixel >= 0 && std::isfinite(photo_meters_per_pixel),
        "photo_meters_per_pixel must be >= 0 (0: the camera's meters_per_pixel)");
   need(photos.empty() || train_images == 0 || !train_photos.empty(),
        "a photo floor's train split needs training photos (--train-photo), or --train 0");
   need(!(photos.empty() && !train_photos.empty()), "training photos need map photos (--photo)");
   for (const auto& k : only) {
-    need(k == "train" || k == "database" || k == "queries",
-         "only: unknown split kind '" + k + "' (valid: train, database, queries)");
+    need(k == "train" || k == "database" || k == "queries" || k == "drive",
+         "only: unknown split kind '" + k + "' (valid: train, database, queries, drive)");
   }
   const Layout l = LawnmowerLayout(*this, area_width, area_height);
   need(static_cast<double>(l.cols) * l.rows <= 5e7,
@@ -151,6 +174,7 @@ void KeepOnly(const SynthOptions& o, DatasetPlan* plan) {
     if (wanted(im.split)) kept.push_back(std::move(im));
   }
   plan->images.swap(kept);
+  if (!wanted("drive")) plan->drive_odometry.clear();
   for (auto it = plan->splits.begin(); it != plan->splits.end();) {
     it = wanted(it->first) ? std::next(it) : plan->splits.erase(it);
   }
@@ -343,6 +367,117 @@ DatasetPlan PlanPhotoDataset(const SynthOptions& o, const std::vector<PhotoRegio
   return plan;
 }
 
+namespace {
+
+// The base curve of the drive: a rounded rectangle, counter-clockwise from the start of its
+// bottom side. At() returns the point at arc length u (wrapped to one lap) and the
+// inward unit normal there.
+struct RoundedRect {
+  double x0, y0, x1, y1, r;
+  double Perimeter() const { return 2 * (x1 - x0 - 2 * r) + 2 * (y1 - y0 - 2 * r) + 2 * M_PI * r; }
+  void At(double u, Vec2* p, Vec2* inward) const {
+    const double lx = x1 - x0 - 2 * r, ly = y1 - y0 - 2 * r, arc = 0.5 * M_PI * r;
+    u = std::fmod(u, Perimeter());
+    if (u < 0) u += Perimeter();
+    // Sides and corners in order: bottom (+x), corner, right (+y), corner, top (-x), corner,
+    // left (-y), corner.
+    const double side_len[4] = {lx, ly, lx, ly};
+    const Vec2 start[4] = {{x0 + r, y0}, {x1, y0 + r}, {x1 - r, y1}, {x0, y1 - r}};
+    const Vec2 dir[4] = {{1, 0}, {0, 1}, {-1, 0}, {0, -1}};
+    const Vec2 centre[4] = {{x1 - r, y0 + r}, {x1 - r, y1 - r}, {x0 + r, y1 - r}, {x0 + r, y0 + r}};
+    for (int k = 0; k < 4; ++k) {
+      if (u <= side_len[k]) {
+        *p = {start[k].x + u * dir[k].x, start[k].y + u * dir[k].y};
+        *inward = {-dir[k].y, dir[k].x};  // left of the direction of travel
+        return;
+      }
+      u -= side_len[k];
+      if (u <= arc || k == 3) {
+        const double a = -0.5 * M_PI + k * 0.5 * M_PI + std::min(u, arc) / r;
+        *p = {centre[k].x + r * std::cos(a), centre[k].y + r * std::sin(a)};
+        *inward = {-std::cos(a), -std::sin(a)};
+        return;
+      }
+      u -= arc;
+    }
+  }
+};
+
+}  // namespace
+
+std::vector<Pose2D> DrivePath(double width, double height, const ImageGeometry& g, double length,
+                              double spacing) {
+  const double fw = g.width * g.meters_per_pixel, fh = g.height * g.meters_per_pixel;
+  const double inset = 0.5 * std::hypot(fw, fh);
+  RoundedRect rect{inset, inset, width - inset, height - inset, 0.0};
+  const double w = rect.x1 - rect.x0, h = rect.y1 - rect.y0;
+  if (!(w > 0.5 * fh && h > 0.5 * fh)) {
+    char buf[200];
+    std::snprintf(buf, sizeof(buf),
+                  "the database area %.3f x %.3f m is too small for a drive: the path keeps half "
+                  "a footprint diagonal (%.3f m) from its edges",
+                  width, height, inset);
+    throw std::invalid_argument(buf);
+  }
+  // Sideways shift of each lap (left of the direction of travel, i.e. inwards), blended over the
+  // lap with a smoothstep; the corners' radius exceeds the largest inward shift.
+  const double corner = 0.5 * std::min(w, h);
+  rect.r = std::min(corner, std::max(0.15, 0.3 * std::min(w, h)));
+  const double amplitude = std::min(0.35 * fh, 0.6 * rect.r);
+  auto shift = [&](int lap) { return amplitude * std::sin(2.4 * lap + 0.3); };
+  const double perimeter = rect.Perimeter();
+  auto point = [&](double u) {
+    Vec2 p, n;
+    rect.At(u, &p, &n);
+    const int lap = static_cast<int>(std::floor(u / perimeter));
+    const double f = u / perimeter - lap;
+    const double s = shift(lap) + (shift(lap + 1) - shift(lap)) * f * f * (3 - 2 * f);
+    return Vec2{p.x + s * n.x, p.y + s * n.y};
+  };
+  const double du = std::min(5e-4, 0.1 * spacing);
+  std::vector<Pose2D> poses;
+  const size_t n = static_cast<size_t>(std::floor(length / spacing + 1e-9)) + 1;
+  poses.reserve(n);
+  Vec2 prev = point(0.0);
+  double travelled = 0.0, next = 0.0, u = 0.0;
+  while (poses.size() < n) {
+    const Vec2 cur = point(u + du);
+    const double step = std::hypot(cur.x - prev.x, cur.y - prev.y);
+    while (poses.size() < n && travelled + step >= next) {
+      const double f = step > 0 ? (next - travelled) / step : 0.0;
+      poses.push_back({prev.x + f * (cur.x - prev.x), prev.y + f * (cur.y - prev.y),
+                       std::atan2(cur.y - prev.y, cur.x - prev.x)});
+      next += spacing;
+    }
+    travelled += step;
+    prev = cur;
+    u += du;
+  }
+  return poses;
+}
+
+std::vector<Pose2D> SimulateOdometry(const std::vector<Pose2D>& truth, const OdometryNoise& noise,
+                                     uint64_t seed) {
+  noise.Check();
+  std::vector<Pose2D> odom;
+  if (truth.empty()) return odom;
+  odom.reserve(truth.size());
+  odom.push_back(truth[0]);
+  CellRng rng(HashCombine(seed, 0x0d0));
+  for (size_t i = 1; i < truth.size(); ++i) {
+    const Pose2D rel = Compose(Inverse(truth[i - 1]), truth[i]);
+    const double d = std::hypot(rel.x, rel.y);
+    const double n1 = rng.Normal(), n2 = rng.Normal();
+    const double s = 1.0 + noise.scale_bias + noise.scale_noise * n1;
+    const double dtheta = WrapAngle(rel.theta) * (1.0 + noise.turn_bias) + noise.heading_bias * d +
+                          noise.heading_noise * std::sqrt(d) * n2;
+    Pose2D next = Compose(odom.back(), {rel.x * s, rel.y * s, dtheta});
+    next.theta = WrapAngle(next.theta);
+    odom.push_back(next);
+  }
+  return odom;
+}
+
 DatasetPlan PlanDataset(const SynthOptions& o) {
   o.Check();
   if (!o.photos.empty()) return PlanPhotoDataset(o, LoadPhotoFloor(o));
@@ -443,6 +578,27 @@ DatasetPlan PlanDataset(const SynthOptions& o) {
       plan.images.push_back(im);
     }
   }
+  // The drive: one recording session over the database area, with its odometry.
+  if (o.drive_length > 0) {
+    const std::vector<Pose2D> truth = DrivePath(o.area_width, o.area_height, o.camera.Geometry(),
+                                                o.drive_length, o.drive_spacing);
+    std::vector<Pose2D> rounded;
+    rounded.reserve(truth.size());
+    for (const Pose2D& p : truth) rounded.push_back(Rounded(p));
+    const std::vector<Pose2D> odom = SimulateOdometry(rounded, o.odometry, o.seed);
+    std::vector<std::string>& names = plan.splits["drive"];
+    for (size_t i = 0; i < rounded.size(); ++i) {
+      PlannedImage im;
+      im.split = "drive";
+      im.name = ImageName("drive", i);
+      im.pose = rounded[i];
+      im.day = 0.0;
+      im.visit = kDriveVisit;
+      names.push_back(im.name);
+      plan.images.push_back(im);
+      plan.drive_odometry.push_back({im.name, odom[i]});
+    }
+  }
   KeepOnly(o, &plan);
   return plan;
 }
@@ -524,6 +680,10 @@ SynthSummary GenerateDataset(const SynthOptions& o, const fs::path& out, bool fo
     poses.reserve(plan.images.size());
     for (const auto& im : plan.images) poses.push_back({im.name, im.pose});
     WriteDatasetFiles(staging, plan.info, poses, plan.splits);
+    if (!plan.drive_odometry.empty()) {
+      // The columns of poses.csv: the odometry pose of each drive image (OdometryNoise).
+      WriteFileAtomic(staging / "drive_odometry.csv", FormatPosesCsv(plan.drive_odometry));
+    }
     // Provenance: how this dataset was made (an extra file the format allows).
     std::ostringstream prov;
     prov << "# gtbow synth parameters\nsurface: "
@@ -537,6 +697,14 @@ SynthSummary GenerateDataset(const SynthOptions& o, const fs::path& out, bool fo
          << "\nlight_directional: " << o.camera.light_directional
          << "\nlight_azimuth: " << o.camera.light_azimuth
          << "\nlight_elevation: " << o.camera.light_elevation << "\n";
+    if (o.drive_length > 0) {
+      prov << "drive_length: " << o.drive_length << "\ndrive_spacing: " << o.drive_spacing
+           << "\nodometry_scale_bias: " << o.odometry.scale_bias
+           << "\nodometry_scale_noise: " << o.odometry.scale_noise
+           << "\nodometry_turn_bias: " << o.odometry.turn_bias
+           << "\nodometry_heading_bias: " << o.odometry.heading_bias
+           << "\nodometry_heading_noise: " << o.odometry.heading_noise << "\n";
+    }
     if (!regions.empty()) {
       // Each photograph: file name, checksum of its bytes, scale and where it lies on the floor.
       prov << "photo_regions:\n";

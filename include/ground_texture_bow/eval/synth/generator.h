@@ -21,6 +21,26 @@ namespace synth {
 // light, motion blur, per-visit tone curve.
 constexpr int kRendererVersion = 2;
 
+// The odometry of the synthetic drive (gtbow synth --drive): wheel odometry integrated step by
+// step from the true motion between consecutive drive images, with the errors a differential
+// drive typically has. For a step of true length d (metres) and true turn dtheta (radians),
+// expressed in the previous pose's frame as (dx, dy, dtheta):
+//   (dx, dy) * (1 + scale_bias + scale_noise * n1)                      wheel radius / slip
+//   dtheta * (1 + turn_bias) + heading_bias * d + heading_noise * sqrt(d) * n2
+//                                                                         track width / drift
+// with n1, n2 independent standard normals per step, drawn from the dataset's seed. The
+// integrated poses start at the first true pose (the odometry frame is the floor frame at the
+// start) and drift from there.
+struct OdometryNoise {
+  double scale_bias = 0.003;     // systematic distance scale error, fraction
+  double scale_noise = 0.01;     // per-step distance scale noise, fraction (sd)
+  double turn_bias = 0.002;      // systematic turn scale error, fraction
+  double heading_bias = 0.0005;  // systematic heading drift, rad per metre driven
+  double heading_noise = 0.001;  // random heading walk, rad per sqrt(metre) (sd)
+
+  void Check() const;  // throws std::invalid_argument naming the first bad field
+};
+
 struct SynthOptions {
   Surface surface = Surface::kAsphalt;  // floor material
   uint64_t seed = 1;                    // same options and seed give byte-identical output
@@ -35,8 +55,15 @@ struct SynthOptions {
   double position_jitter = 0.002;  // database pose noise around the path, metres (sd)
   double heading_jitter = 0.02;    // database heading noise, radians (sd)
   CameraOptions camera;            // image size, scale and sensor effects
-  int threads = 0;                 // worker threads, 0 = all cores
-  // Render only these kinds of split ("train", "database", "queries"); empty = all. Poses
+  // A continuous drive (split "drive"): laps around a rounded rectangle inset in the database
+  // area, each lap shifted sideways a little (up to 35% of the footprint height) so that
+  // revisits overlap without repeating poses exactly, an image every drive_spacing metres, and
+  // drive_odometry.csv beside poses.csv (OdometryNoise). 0 = no drive.
+  double drive_length = 0.0;    // metres of path
+  double drive_spacing = 0.01;  // metres between consecutive drive images (> 0)
+  OdometryNoise odometry;       // noise model of drive_odometry.csv
+  int threads = 0;              // worker threads, 0 = all cores
+  // Render only these kinds of split ("train", "database", "queries", "drive"); empty = all. Poses
   // are those of the full dataset, so partial datasets of one seed fit together.
   std::vector<std::string> only;
   // A photo floor instead of a procedural one (gtbow synth --photo): each photograph is one
@@ -70,7 +97,20 @@ struct DatasetPlan {
   DatasetInfo info;
   std::vector<PlannedImage> images;
   std::map<std::string, std::vector<std::string>> splits;
+  // The drive's odometry, one pose per image of split "drive" in its order (empty without a
+  // drive).
+  std::vector<PoseRecord> drive_odometry;
 };
+
+// The true poses of the drive: `length` metres of laps around a rounded rectangle inset half a
+// footprint diagonal into the area [0, width] x [0, height], one pose every `spacing` metres
+// along the path, heading along the path (counter-clockwise).
+std::vector<Pose2D> DrivePath(double width, double height, const ImageGeometry& geometry,
+                              double length, double spacing);
+
+// Odometry integrated from consecutive true poses under `noise` (OdometryNoise), seeded.
+std::vector<Pose2D> SimulateOdometry(const std::vector<Pose2D>& truth, const OdometryNoise& noise,
+                                     uint64_t seed);
 
 // Lays out every image and its pose without rendering anything (a photo floor's photographs
 // are read for their sizes).
