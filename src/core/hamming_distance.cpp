@@ -1,5 +1,6 @@
 #include "hamming_distance.h"
 
+#include <algorithm>
 #include <cstdlib>
 #include <cstring>
 #include <stdexcept>
@@ -124,6 +125,34 @@ __attribute__((target("avx512f,avx512vpopcntdq"))) int Avx512Below(const uint64_
 }
 #endif
 
+#ifdef GTBOW_HAVE_AVX512_POPCNT_KERNEL
+__attribute__((target("avx512f,avx512vpopcntdq"))) void Avx512All(const uint64_t* q,
+                                                                  const uint64_t* blocks, int n,
+                                                                  int chunks, uint32_t* out) {
+  const int nblocks = (n + kBinaryBlockRows - 1) / kBinaryBlockRows;
+  const size_t block = static_cast<size_t>(kBinaryBlockRows) * chunks;
+  for (int bi = 0; bi < nblocks; ++bi) {
+    const uint64_t* b = blocks + bi * block;
+    __m512i v = _mm512_setzero_si512();
+    for (int k = 0; k < chunks; ++k) {
+      const __m512i qk = _mm512_set1_epi64(static_cast<long long>(q[k]));
+      v = _mm512_add_epi64(
+          v, _mm512_popcnt_epi64(_mm512_xor_si512(_mm512_loadu_si512(b + 8 * k), qk)));
+    }
+    const int first = bi * kBinaryBlockRows, valid = std::min(kBinaryBlockRows, n - first);
+    // The 8 lanes' distances as 32-bit values, without the padding rows of the last block.
+    const __m256i d32 = _mm512_cvtepi64_epi32(v);
+    if (valid == kBinaryBlockRows) {
+      _mm256_storeu_si256(reinterpret_cast<__m256i*>(out + first), d32);
+    } else {
+      alignas(32) uint32_t lanes[kBinaryBlockRows];
+      _mm256_store_si256(reinterpret_cast<__m256i*>(lanes), d32);
+      std::memcpy(out + first, lanes, sizeof(uint32_t) * static_cast<size_t>(valid));
+    }
+  }
+}
+#endif
+
 HammingKernel BestKernel() {
   const char* cap = std::getenv("GTBOW_SIMD");
   const bool capped =
@@ -156,6 +185,22 @@ int HammingBelowUsing(HammingKernel kernel, const uint64_t* q, const uint64_t* b
     return Avx512Below(q, blocks, n, chunks, threshold, index, distance);
 #endif
   return PortableBelow(q, blocks, n, chunks, threshold, index, distance);
+}
+
+void HammingAll(const uint64_t* q, const uint64_t* blocks, int n, int chunks, uint32_t* out) {
+  static const HammingKernel kernel = BestKernel();
+#ifdef GTBOW_HAVE_AVX512_POPCNT_KERNEL
+  if (kernel == HammingKernel::kAvx512) return Avx512All(q, blocks, n, chunks, out);
+#endif
+  for (int i = 0; i < n; ++i) {
+    const uint64_t* blk =
+        blocks + static_cast<size_t>(i / kBinaryBlockRows) * kBinaryBlockRows * chunks;
+    const int lane = i % kBinaryBlockRows;
+    uint32_t s = 0;
+    for (int k = 0; k < chunks; ++k)
+      s += static_cast<uint32_t>(__builtin_popcountll(q[k] ^ blk[k * kBinaryBlockRows + lane]));
+    out[i] = s;
+  }
 }
 
 int HammingBelow(const uint64_t* q, const uint64_t* blocks, int n, int chunks, uint32_t threshold,

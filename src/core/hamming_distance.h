@@ -17,6 +17,8 @@ void PackBinaryRows(const uint8_t* rows, int n, int bytes, std::vector<uint64_t>
 // `threshold`: writes their indices and distances in increasing index order, returns the count.
 int HammingBelow(const uint64_t* query, const uint64_t* blocks, int n, int chunks,
                  uint32_t threshold, uint32_t* index, uint32_t* distance);
+// The distances of `query` to all `n` packed rows, in row order (out: n values).
+void HammingAll(const uint64_t* query, const uint64_t* blocks, int n, int chunks, uint32_t* out);
 // Hamming distance of two descriptors of `bytes` bytes.
 uint32_t HammingDistance(const uint8_t* a, const uint8_t* b, int bytes);
 

@@ -416,26 +416,47 @@ std::vector<PointMatch> MatchesOf(const QueryResult& result,
 
 namespace {
 
-// Not under ThreadSanitizer: the clones' ifunc resolvers run during relocation, before the
-// TSan runtime is up, and crash once instrumented.
-#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__) && !defined(__SANITIZE_THREAD__)
-#define GTBOW_POPCNT_CLONE __attribute__((target_clones("popcnt", "default")))
-#else
-#define GTBOW_POPCNT_CLONE
-#endif
+// out[i * nd + j] = Hamming distance of query row i and database row j (rows of a multiple of
+// 8 bytes), through the vector-popcount kernel the word search uses.
+void HammingTable(const cv::Mat& q, const cv::Mat& d, uint32_t* out) {
+  std::vector<uint64_t> blocks, row(static_cast<size_t>(q.cols / 8));
+  const cv::Mat rows = d.isContinuous() ? d : d.clone();  // packed from one buffer
+  PackBinaryRows(rows.ptr<uint8_t>(), rows.rows, rows.cols, &blocks);
+  for (int i = 0; i < q.rows; ++i) {
+    std::memcpy(row.data(), q.ptr(i), static_cast<size_t>(q.cols));
+    HammingAll(row.data(), blocks.data(), d.rows, q.cols / 8,
+               out + static_cast<size_t>(i) * d.rows);
+  }
+}
 
-// out[i * nd + j] = Hamming distance of query row i and database row j (`words` uint64 each).
-GTBOW_POPCNT_CLONE void HammingTable(const uint64_t* q, int nq, const uint64_t* d, int nd,
-                                     int words, uint32_t* out) {
+// Nearest and second nearest of each row of the nq x nd `table`, and each column's nearest row.
+template <typename T>
+void NearestInTable(const T* table, int nq, int nd, std::vector<double>* q_best,
+                    std::vector<double>* q_second, std::vector<int>* q_arg,
+                    std::vector<int>* d_arg) {
+  std::vector<T> d_best(static_cast<size_t>(nd), std::numeric_limits<T>::max());
   for (int i = 0; i < nq; ++i) {
-    const uint64_t* a = q + static_cast<size_t>(i) * words;
+    const T* r = table + static_cast<size_t>(i) * nd;
+    T b1 = std::numeric_limits<T>::max(), b2 = b1;
+    int a = -1;
     for (int j = 0; j < nd; ++j) {
-      const uint64_t* b = d + static_cast<size_t>(j) * words;
-      uint32_t bits = 0;
-      for (int k = 0; k < words; ++k)
-        bits += static_cast<uint32_t>(__builtin_popcountll(a[k] ^ b[k]));
-      out[static_cast<size_t>(i) * nd + j] = bits;
+      const T x = r[j];
+      if (x < b1) {
+        b2 = b1;
+        b1 = x;
+        a = j;
+      } else if (x < b2) {
+        b2 = x;
+      }
+      if (x < d_best[j]) {
+        d_best[j] = x;
+        (*d_arg)[j] = i;
+      }
     }
+    (*q_best)[i] = static_cast<double>(b1);
+    (*q_second)[i] = b2 == std::numeric_limits<T>::max() ? std::numeric_limits<double>::infinity()
+                                                         : static_cast<double>(b2);
+    (*q_arg)[i] = a;
   }
 }
 
@@ -456,45 +477,31 @@ std::vector<PointMatch> DescriptorMatches(const std::vector<Keypoint>& qk, const
     throw std::invalid_argument("DescriptorMatches: the two images' descriptors differ in kind");
   }
   const bool binary = qd.type() == CV_8U && qd.cols % 8 == 0;
-  // Binary rows as 64-bit words: the whole n_q x n_d table of Hamming distances at once.
-  std::vector<uint32_t> table;
-  if (binary) {
-    const int words = qd.cols / 8;
-    std::vector<uint64_t> qw(static_cast<size_t>(nq) * words), dw(static_cast<size_t>(nd) * words);
-    for (int i = 0; i < nq; ++i)
-      std::memcpy(&qw[static_cast<size_t>(i) * words], qd.ptr(i), qd.cols);
-    for (int j = 0; j < nd; ++j)
-      std::memcpy(&dw[static_cast<size_t>(j) * words], dd.ptr(j), dd.cols);
-    table.resize(static_cast<size_t>(nq) * nd);
-    HammingTable(qw.data(), nq, dw.data(), nd, words, table.data());
-  }
-  auto distance = [&](int i, int j) -> double {
-    if (binary) return table[static_cast<size_t>(i) * nd + j];
-    if (qd.type() == CV_8U) return HammingDistance(qd.ptr<uint8_t>(i), dd.ptr<uint8_t>(j), qd.cols);
-    const float* a = qd.ptr<float>(i);
-    const float* b = dd.ptr<float>(j);
-    double sum = 0.0;
-    for (int k = 0; k < qd.cols; ++k) sum += (a[k] - b[k]) * (a[k] - b[k]);
-    return std::sqrt(sum);
-  };
-  const double inf = std::numeric_limits<double>::infinity();
-  std::vector<double> q_best(nq, inf), q_second(nq, inf), d_best(nd, inf);
+  // The whole n_q x n_d table of distances, then each row's two nearest and each column's
+  // nearest.
+  std::vector<double> q_best(nq), q_second(nq);
   std::vector<int> q_arg(nq, -1), d_arg(nd, -1);
-  for (int i = 0; i < nq; ++i) {
-    for (int j = 0; j < nd; ++j) {
-      const double x = distance(i, j);
-      if (x < q_best[i]) {
-        q_second[i] = q_best[i];
-        q_best[i] = x;
-        q_arg[i] = j;
-      } else if (x < q_second[i]) {
-        q_second[i] = x;
-      }
-      if (x < d_best[j]) {
-        d_best[j] = x;
-        d_arg[j] = i;
+  if (binary) {
+    std::vector<uint32_t> table(static_cast<size_t>(nq) * nd);
+    HammingTable(qd, dd, table.data());
+    NearestInTable(table.data(), nq, nd, &q_best, &q_second, &q_arg, &d_arg);
+  } else {
+    std::vector<double> table(static_cast<size_t>(nq) * nd);
+    for (int i = 0; i < nq; ++i) {
+      for (int j = 0; j < nd; ++j) {
+        double sum = 0.0;
+        if (qd.type() == CV_8U) {
+          sum = HammingDistance(qd.ptr<uint8_t>(i), dd.ptr<uint8_t>(j), qd.cols);
+        } else {
+          const float* a = qd.ptr<float>(i);
+          const float* b = dd.ptr<float>(j);
+          for (int k = 0; k < qd.cols; ++k) sum += (a[k] - b[k]) * (a[k] - b[k]);
+          sum = std::sqrt(sum);
+        }
+        table[static_cast<size_t>(i) * nd + j] = sum;
       }
     }
+    NearestInTable(table.data(), nq, nd, &q_best, &q_second, &q_arg, &d_arg);
   }
   for (int i = 0; i < nq; ++i) {
     const int j = q_arg[i];

@@ -65,6 +65,14 @@ TEST(HammingDistance, KernelsMatchTheReferenceForEverySizeAndThreshold) {
           }
         }
       }
+      // Every distance, in row order, and nothing written past the last row (the padding rows
+      // of the last block are not rows).
+      std::vector<uint32_t> all(static_cast<size_t>(n) + 1, 12345u);
+      HammingAll(pq.data(), packed.data(), n, bytes / 8, all.data());
+      for (int i = 0; i < n; ++i) {
+        EXPECT_EQ(all[i], Reference(q.data(), rows.data() + static_cast<size_t>(i) * bytes, bytes));
+      }
+      EXPECT_EQ(all[n], 12345u) << "bytes " << bytes << " n " << n;
     }
   }
   std::vector<uint64_t> out;
