@@ -7,16 +7,26 @@
 #   3. write the drive as a bag: images, odometry (nav_msgs/Odometry + TF odom -> base_link),
 #      the camera mounted 12 cm ahead and turned 90 degrees (static TF), ground truth
 #   4. for the high_accuracy and the fast preset: replay it through the localizer (mapping mode,
-#      in the odometry frame) and pose_graph_backend (launch/backend.launch)
+#      in the odometry frame) and pose_graph_backend (launch/backend.launch), recording the
+#      published loop closures (closures_<preset>_n<N>.bag, for scripts/closure_precision.py)
 #   5. the absolute trajectory error of odometry alone and of both backends, and a plot
 #      (scripts/backend_ate.py)
-# Usage: backend_demo.sh WORKSPACE OUT_DIR    (DRIVE_METRES, default 30; RATE Hz, default 20)
+# Usage: backend_demo.sh WORKSPACE OUT_DIR    (DRIVE_METRES, default 30; RATE Hz, default 20;
+#        TEMPORAL, the localizer's ~temporal_consistency N, default 1; PRESETS, default
+#        "high_accuracy fast"; REUSE=1 keeps the floor, vocabulary and bag of an earlier run)
+# With TEMPORAL other than 1, the per-preset outputs (log, trajectory, ATE table and plot) carry
+# a suffix _n<N>, so runs with different N can share OUT_DIR.
 set -euo pipefail
 export PATH="/usr/bin:$PATH"
 ws="$(cd "$1" && pwd)"
 out="$2"
 drive_m="${DRIVE_METRES:-30}"
 rate="${RATE:-20}"
+temporal="${TEMPORAL:-1}"
+presets="${PRESETS:-high_accuracy fast}"
+[[ "$temporal" =~ ^[1-9][0-9]*$ ]] || { echo "TEMPORAL must be a positive integer"; exit 1; }
+sfx=""; label_sfx=""  # no '=' in labels: backend_ate.py splits LABEL=path at the first one
+if [ "$temporal" != 1 ]; then sfx="_n$temporal"; label_sfx=" (temporal consistency $temporal)"; fi
 here="$(cd "$(dirname "$0")" && pwd)"
 set +u
 source "$ws/devel/setup.bash"
@@ -55,10 +65,13 @@ pids+=($!)
 for _ in $(seq 50); do rosparam list > /dev/null 2>&1 && break; sleep 0.2; done
 
 runs=()
-for preset in high_accuracy fast; do
-  echo "== backend 4. $preset: replaying the drive through the localizer and the backend"
+for preset in $presets; do
+  echo "== backend 4. $preset: replaying the drive through the localizer and the backend" \
+    "(temporal_consistency $temporal)"
+  log="$out/$preset$sfx.log"
   roslaunch ground_texture_bow backend.launch vocabulary:="$out/floor.gtvoc" \
-    preset:="$ws/src/ground_texture_bow/config/$preset.yaml" > "$out/$preset.log" 2>&1 &
+    preset:="$ws/src/ground_texture_bow/config/$preset.yaml" \
+    temporal_consistency:="$temporal" > "$log" 2>&1 &
   launch_pid=$!
   pids+=($launch_pid)
   ok=0
@@ -66,23 +79,44 @@ for preset in high_accuracy fast; do
     services="$(rosservice list 2>/dev/null || true)"
     if grep -qx /backend/save_trajectory <<< "$services" &&
        grep -qx /localizer/get_info <<< "$services"; then ok=1; break; fi
-    grep -q "cannot start" "$out/$preset.log" && break
+    grep -q "cannot start" "$log" && break
     sleep 0.3
   done
-  [ $ok = 1 ] || { echo "the localizer or the backend did not start: see $out/$preset.log"; exit 1; }
+  [ $ok = 1 ] || { echo "the localizer or the backend did not start: see $log"; exit 1; }
+  # The published loop closures, recorded from before the replay until after it.
+  closures_bag="$out/closures_${preset}_n$temporal.bag"
+  rm -f "$closures_bag" "$closures_bag.active"
+  rosbag record -O "$closures_bag" /localizer/loop_closures __name:=closure_recorder \
+    > "$out/record_$preset$sfx.log" 2>&1 &
+  record_pid=$!
+  pids+=($record_pid)
+  ok=0
+  for _ in $(seq 100); do
+    rostopic info /localizer/loop_closures 2>/dev/null | grep -q "/closure_recorder" &&
+      { ok=1; break; }
+    sleep 0.2
+  done
+  [ $ok = 1 ] ||
+    { echo "rosbag record did not subscribe: see $out/record_$preset$sfx.log"; exit 1; }
   # -d: time for the nodes to connect to the bag's topics before the first message.
-  rosbag play --quiet -d 2 "$out/drive.bag" > "$out/play_$preset.log" 2>&1
+  rosbag play --quiet -d 2 "$out/drive.bag" > "$out/play_$preset$sfx.log" 2>&1
   sleep 2
   rosservice call /localizer/get_info | grep -E "database_size|images_(processed|dropped)" |
     sed 's/^/   /'
-  rosservice call /backend/save_trajectory "path: '$out/trajectory_$preset.csv'" |
+  rosservice call /backend/save_trajectory "path: '$out/trajectory_$preset$sfx.csv'" |
     grep -E "message|nodes|closures_" | sed 's/^/   /'
+  kill -INT $record_pid
+  wait $record_pid 2>/dev/null || true
+  for _ in $(seq 50); do [ -f "$closures_bag" ] && break; sleep 0.2; done
+  [ -f "$closures_bag" ] || { echo "rosbag record left no $closures_bag"; exit 1; }
+  echo "   loop closures recorded: $closures_bag"
   kill -INT $launch_pid
   wait $launch_pid 2>/dev/null || true
-  runs+=(--run "backend + $preset closures=$out/trajectory_$preset.csv")
+  runs+=(--run "backend + $preset closures$label_sfx=$out/trajectory_$preset$sfx.csv")
 done
 
 echo "== backend 5. absolute trajectory error (camera footprint against the ground truth)"
 /usr/bin/python3 "$here/backend_ate.py" "$out/floor" --start 1000 --rate "$rate" \
-  --plot "$out/backend_ate.png" --markdown "$out/backend_ate.md" "${runs[@]}" | sed 's/^/   /'
+  --plot "$out/backend_ate$sfx.png" --markdown "$out/backend_ate$sfx.md" "${runs[@]}" |
+  sed 's/^/   /'
 echo "   ($(( $(date +%s) - t_start )) s; logs, bag and trajectories in $out)"

@@ -158,26 +158,6 @@ std::vector<Candidate> Localizer::QueryLocked(const BowVector& bow, int width, i
     out.push_back(std::move(c));
     if (out.size() == k) break;
   }
-  if (verify && options_.retrieval.verification.max_conflict_ratio > 0.0) {
-    // Consensus among the candidates, compared in the map frame (keyframes with a pose).
-    std::vector<std::optional<Pose2D>> poses;
-    std::vector<PoseEstimate> estimates;
-    for (const Candidate& c : out) {
-      poses.push_back(
-          c.has_pose && c.verified
-              ? std::optional<Pose2D>(Compose(c.map_from_camera, c.relative.floor_from_query))
-              : std::nullopt);
-      estimates.push_back(c.relative);
-    }
-    ResolveConflicts(poses, &estimates, options_.retrieval.verification);
-    for (size_t i = 0; i < out.size(); ++i) {
-      if (out[i].verified && !estimates[i].success) {
-        out[i].verified = false;
-        out[i].relative = std::move(estimates[i]);
-        out[i].inliers.clear();
-      }
-    }
-  }
   return out;
 }
 

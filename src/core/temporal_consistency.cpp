@@ -43,6 +43,15 @@ bool TemporalConsistency::Agree(const ClosureObservation& a, const ClosureObserv
   return gap <= options_.max_id_gap;
 }
 
+size_t TemporalConsistency::Pick(const std::vector<ClosureObservation>& candidates) const {
+  if (last_) {
+    for (size_t i = 0; i < candidates.size(); ++i) {
+      if (Agree(*last_, candidates[i])) return i;
+    }
+  }
+  return 0;
+}
+
 bool TemporalConsistency::Next(const std::optional<ClosureObservation>& closure) {
   if (!closure) {
     Reset();

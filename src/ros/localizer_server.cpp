@@ -316,14 +316,34 @@ void LocalizerServer::ProcessImage(const Pending& msg) {
     list.query_id = query_id;
     for (const auto& c : cands) list.candidates.push_back(ToCandidateMsg(c));
     candidates_pub_.publish(list);
-    // The loop closure, once ~temporal_consistency images in a row agree on the place.
-    const int chosen = gtbow::LoopClosureCandidate(cands, options_.core.retrieval.verification);
+    // The loop closure, once ~temporal_consistency images in a row agree on the place: among
+    // the verified candidates (the preset's choice first, then by inliers), the one that
+    // continues the run.
+    std::vector<size_t> order;
+    const int preferred = gtbow::LoopClosureCandidate(cands, options_.core.retrieval.verification);
+    if (preferred >= 0) order.push_back(static_cast<size_t>(preferred));
+    std::vector<size_t> others;
+    for (size_t i = 0; i < cands.size(); ++i) {
+      if (cands[i].verified && static_cast<int>(i) != preferred) others.push_back(i);
+    }
+    std::stable_sort(others.begin(), others.end(), [&](size_t a, size_t b) {
+      return cands[a].relative.inliers > cands[b].relative.inliers;
+    });
+    order.insert(order.end(), others.begin(), others.end());
+    std::vector<gtbow::ClosureObservation> observed;
+    for (size_t i : order) {
+      const gtbow::Candidate& c = cands[i];
+      observed.push_back(
+          {c.id, c.has_pose ? std::optional<gtbow::Pose2D>(c.map_from_camera) : std::nullopt,
+           c.relative.floor_from_query, pose});
+    }
     std::optional<gtbow::ClosureObservation> seen;
-    if (chosen >= 0) {
+    int chosen = -1;
+    if (!observed.empty()) {
+      const size_t pick = options_.temporal.required > 1 ? temporal_.Pick(observed) : 0;
+      seen = observed[pick];
+      chosen = static_cast<int>(order[pick]);
       const gtbow::Candidate& c = cands[static_cast<size_t>(chosen)];
-      seen = gtbow::ClosureObservation{
-          c.id, c.has_pose ? std::optional<gtbow::Pose2D>(c.map_from_camera) : std::nullopt,
-          c.relative.floor_from_query, pose};
       inliers = c.inliers;
       caption = "keyframe " + std::to_string(c.id) + ", " + std::to_string(c.relative.inliers) +
                 " inliers";

@@ -38,6 +38,31 @@ TEST(TemporalConsistency, PublishesOnceNImagesInARowAgree) {
   EXPECT_EQ(t.run(), 0);
 }
 
+TEST(TemporalConsistency, TheRunFollowsThePassItIsOn) {
+  TemporalConsistencyOptions o;
+  o.required = 3;
+  TemporalConsistency t(o);
+  // Two earlier passes over the place, their keyframes' odometry drifted apart by 8 cm: each
+  // image verifies against one keyframe of each. The better candidate alternates between the
+  // passes; the run must follow one.
+  const Pose2D pass_a{0.0, 0.0, 0.0}, pass_b{0.08, 0.0, 0.0};  // drift of each pass
+  int published = 0;
+  for (int i = 0; i < 6; ++i) {
+    const Pose2D own{0.01 * i, 0.0, 0.0};  // the robot now, by its odometry (no drift)
+    auto seen_from = [&](const Pose2D& drift, uint32_t id) {
+      const Pose2D keyframe_true{0.01 * i + 0.002, 0.001, 0.0};
+      return Closure(id, Compose(drift, keyframe_true), Compose(drift, own), own);
+    };
+    std::vector<ClosureObservation> c = {seen_from(pass_a, 10 + i), seen_from(pass_b, 200 + i)};
+    if (i % 2 == 1) std::swap(c[0], c[1]);  // the other pass has more inliers this time
+    const size_t pick = t.Pick(c);
+    if (i > 0) EXPECT_EQ(c[pick].match_id, 10u + i) << i;  // stays on pass a
+    published += t.Next(c[pick]) ? 1 : 0;
+  }
+  EXPECT_EQ(published, 4);  // images 2..5
+  EXPECT_EQ(t.Pick({}), 0u);
+}
+
 TEST(TemporalConsistency, NOfOnePublishesEveryClosureAndFallbacksCompareWhatIsKnown) {
   TemporalConsistency every(TemporalConsistencyOptions{});
   EXPECT_TRUE(every.Next(Closure(1, {0, 0, 0}, {0, 0, 0}, std::nullopt)));

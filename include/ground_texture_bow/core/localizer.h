@@ -80,7 +80,11 @@ struct Candidate {
 
 // The candidate a loop closure is published for: the first verified one, or with the
 // consensus on (LocalizationOptions::max_conflict_ratio) the verified one with the most inliers;
-// -1 when none verified.
+// -1 when none verified. The consensus itself is not applied to loop-closure candidates (Query):
+// their keyframes' poses are usually odometry, and keyframes of two passes over the same place
+// disagree by the drift between them (issue 15: measured on a drive, it refused most true
+// closures). Global localization (Localize), against a map's poses, applies it; for loop
+// closures the backend's consistency check and ~temporal_consistency take that role.
 int LoopClosureCandidate(const std::vector<Candidate>& candidates,
                          const LocalizationOptions& options);
 

@@ -7,6 +7,7 @@
 #include <cstdint>
 #include <optional>
 #include <stdexcept>
+#include <vector>
 
 #include "ground_texture_bow/core/geometry.h"
 
@@ -39,6 +40,12 @@ class TemporalConsistency {
   // agreeing images has reached N.
   bool Next(const std::optional<ClosureObservation>& closure);
   int run() const { return run_; }  // consecutive agreeing images so far (0 after none)
+  // Which of an image's verified candidates (best first) to follow: the first that agrees with
+  // the previous image's closure, which continues the run, else the first (a new run). Two
+  // passes over one place each give a candidate; keyframe poses that are odometry disagree by the
+  // drift between the passes, so the run follows the pass it is on (as DBoW2 follows islands).
+  // 0 for an empty list.
+  size_t Pick(const std::vector<ClosureObservation>& candidates) const;
   void Reset();
 
   // Whether two consecutive closures point at the same place.
