@@ -1,6 +1,7 @@
 #include "ground_texture_bow/core/config.h"
 
 #include <cmath>
+#include <filesystem>
 #include <stdexcept>
 #include <string>
 
@@ -107,6 +108,21 @@ TEST(Config, VerificationIsPartOfThePresetButNotOfTheMap) {
   }
   EXPECT_THROW(ParseRetrievalConfig("verification:\n  max_theta_sigma: -1\n", "neg.yaml"),
                std::runtime_error);
+}
+
+TEST(Config, EveryShippedPresetLoads) {
+  // config/ and every ablation directory: a preset that no longer parses fails here, not an
+  // hour into a benchmark.
+  size_t n = 0;
+  for (const auto& e : std::filesystem::recursive_directory_iterator(kDir)) {
+    if (e.path().extension() != ".yaml" || e.path().filename() == "localizer.yaml" ||
+        e.path().filename() == "backend.yaml") {
+      continue;
+    }
+    EXPECT_NO_THROW(LoadRetrievalConfig(e.path())) << e.path();
+    ++n;
+  }
+  EXPECT_GE(n, 30u);
 }
 
 TEST(Config, RoundTripThroughYaml) {
