@@ -50,19 +50,7 @@ echo "== backend 3. bag with odometry"
   --out "$out/drive.bag" -q | sed 's/^/   /'
 fi
 
-port=$((11400 + RANDOM % 500))
-export ROS_MASTER_URI="http://localhost:$port"
-export ROS_HOME="$out/ros_home"
-pids=()
-cleanup() {
-  for p in "${pids[@]}"; do kill -INT "$p" 2>/dev/null || true; done
-  sleep 1
-  for p in "${pids[@]}"; do kill -9 "$p" 2>/dev/null || true; done
-}
-trap cleanup EXIT
-roscore -p "$port" > "$out/roscore.log" 2>&1 &
-pids+=($!)
-for _ in $(seq 50); do rosparam list > /dev/null 2>&1 && break; sleep 0.2; done
+source "$here/private_roscore.sh" "$out"  # a private ROS master; pids, cleanup
 
 runs=()
 for preset in $presets; do

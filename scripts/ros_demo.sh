@@ -27,20 +27,7 @@ echo "== 2. vocabulary"
 "$ws/devel/bin/gtbow_images_to_bag" --dataset "$out/floor" --split query_day180 --no-tf \
   --out "$out/day180.bag" -q
 
-# A private ROS master, so the demo neither needs nor disturbs a running one.
-port=$((11400 + RANDOM % 500))
-export ROS_MASTER_URI="http://localhost:$port"
-export ROS_HOME="$out/ros_home"
-pids=()
-cleanup() {
-  for p in "${pids[@]}"; do kill -INT "$p" 2>/dev/null || true; done
-  sleep 1
-  for p in "${pids[@]}"; do kill -9 "$p" 2>/dev/null || true; done
-}
-trap cleanup EXIT
-roscore -p "$port" > "$out/roscore.log" 2>&1 &
-pids+=($!)
-for _ in $(seq 50); do rosparam list > /dev/null 2>&1 && break; sleep 0.2; done
+source "$here/private_roscore.sh" "$out"  # a private ROS master; pids, cleanup
 # Wall time: the bags' stamps are only compared with each other (TF lookups at image stamps).
 # (launch/demo.launch replays with simulated time instead, for RViz.)
 
