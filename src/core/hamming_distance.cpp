@@ -47,17 +47,23 @@ uint32_t HammingDistance(const uint8_t* a, const uint8_t* b, int bytes) {
 
 namespace {
 
+// The distance of packed row `i` to `q`, one 64-bit popcount per chunk.
+uint32_t PortableDistance(const uint64_t* q, const uint64_t* blocks, int i, int chunks) {
+  const uint64_t* blk =
+      blocks + static_cast<size_t>(i / kBinaryBlockRows) * kBinaryBlockRows * chunks;
+  const int lane = i % kBinaryBlockRows;
+  uint32_t s = 0;
+  for (int k = 0; k < chunks; ++k) {
+    s += static_cast<uint32_t>(__builtin_popcountll(q[k] ^ blk[k * kBinaryBlockRows + lane]));
+  }
+  return s;
+}
+
 int PortableBelow(const uint64_t* q, const uint64_t* blocks, int n, int chunks, uint32_t threshold,
                   uint32_t* index, uint32_t* distance) {
   int m = 0;
   for (int i = 0; i < n; ++i) {
-    const uint64_t* blk =
-        blocks + static_cast<size_t>(i / kBinaryBlockRows) * kBinaryBlockRows * chunks;
-    const int lane = i % kBinaryBlockRows;
-    uint32_t s = 0;
-    for (int k = 0; k < chunks; ++k) {
-      s += static_cast<uint32_t>(__builtin_popcountll(q[k] ^ blk[k * kBinaryBlockRows + lane]));
-    }
+    const uint32_t s = PortableDistance(q, blocks, i, chunks);
     if (s < threshold) {
       index[m] = static_cast<uint32_t>(i);
       distance[m++] = s;
@@ -84,8 +90,20 @@ __attribute__((target("avx512f,avx512vpopcntdq"), always_inline)) inline void Em
   }
 }
 
-// One block of 8 rows per register: per chunk an xor with the broadcast query chunk, a vector
-// popcount and an add; the 8 lanes end up holding the 8 rows' distances.
+// The distances of one packed block `b` of 8 rows to `q`: per chunk an xor with the broadcast
+// query chunk, a vector popcount and an add; the 8 lanes end up holding the 8 rows' distances.
+__attribute__((target("avx512f,avx512vpopcntdq"), always_inline)) inline __m512i BlockDistances(
+    const uint64_t* q, const uint64_t* b, int chunks) {
+  __m512i v = _mm512_setzero_si512();
+  for (int k = 0; k < chunks; ++k) {
+    const __m512i qk = _mm512_set1_epi64(static_cast<long long>(q[k]));
+    v = _mm512_add_epi64(v,
+                         _mm512_popcnt_epi64(_mm512_xor_si512(_mm512_loadu_si512(b + 8 * k), qk)));
+  }
+  return v;
+}
+
+// One block of 8 rows per register (BlockDistances; unrolled for ORB's 4 chunks).
 __attribute__((target("avx512f,avx512vpopcntdq"))) int Avx512Below(const uint64_t* q,
                                                                    const uint64_t* blocks, int n,
                                                                    int chunks, uint32_t threshold,
@@ -113,12 +131,7 @@ __attribute__((target("avx512f,avx512vpopcntdq"))) int Avx512Below(const uint64_
   }
   for (int bi = 0; bi < nblocks; ++bi) {
     const uint64_t* b = blocks + bi * block;
-    __m512i v = _mm512_setzero_si512();
-    for (int k = 0; k < chunks; ++k) {
-      const __m512i qk = _mm512_set1_epi64(static_cast<long long>(q[k]));
-      v = _mm512_add_epi64(
-          v, _mm512_popcnt_epi64(_mm512_xor_si512(_mm512_loadu_si512(b + 8 * k), qk)));
-    }
+    const __m512i v = BlockDistances(q, b, chunks);
     Emit(v, t, bi * kBinaryBlockRows, n, index, distance, &m);
   }
   return m;
@@ -133,15 +146,11 @@ __attribute__((target("avx512f,avx512vpopcntdq"))) void Avx512All(const uint64_t
   const size_t block = static_cast<size_t>(kBinaryBlockRows) * chunks;
   for (int bi = 0; bi < nblocks; ++bi) {
     const uint64_t* b = blocks + bi * block;
-    __m512i v = _mm512_setzero_si512();
-    for (int k = 0; k < chunks; ++k) {
-      const __m512i qk = _mm512_set1_epi64(static_cast<long long>(q[k]));
-      v = _mm512_add_epi64(
-          v, _mm512_popcnt_epi64(_mm512_xor_si512(_mm512_loadu_si512(b + 8 * k), qk)));
-    }
+    const __m512i v = BlockDistances(q, b, chunks);
     const int first = bi * kBinaryBlockRows, valid = std::min(kBinaryBlockRows, n - first);
     // The 8 lanes' distances as 32-bit values, without the padding rows of the last block.
-    const __m256i d32 = _mm512_cvtepi64_epi32(v);
+    // (the masked form: the plain one reads an undefined register, which GCC 12 warns about)
+    const __m256i d32 = _mm512_mask_cvtepi64_epi32(_mm256_setzero_si256(), 0xFF, v);
     if (valid == kBinaryBlockRows) {
       _mm256_storeu_si256(reinterpret_cast<__m256i*>(out + first), d32);
     } else {
@@ -192,15 +201,7 @@ void HammingAll(const uint64_t* q, const uint64_t* blocks, int n, int chunks, ui
 #ifdef GTBOW_HAVE_AVX512_POPCNT_KERNEL
   if (kernel == HammingKernel::kAvx512) return Avx512All(q, blocks, n, chunks, out);
 #endif
-  for (int i = 0; i < n; ++i) {
-    const uint64_t* blk =
-        blocks + static_cast<size_t>(i / kBinaryBlockRows) * kBinaryBlockRows * chunks;
-    const int lane = i % kBinaryBlockRows;
-    uint32_t s = 0;
-    for (int k = 0; k < chunks; ++k)
-      s += static_cast<uint32_t>(__builtin_popcountll(q[k] ^ blk[k * kBinaryBlockRows + lane]));
-    out[i] = s;
-  }
+  for (int i = 0; i < n; ++i) out[i] = PortableDistance(q, blocks, i, chunks);
 }
 
 int HammingBelow(const uint64_t* q, const uint64_t* blocks, int n, int chunks, uint32_t threshold,
