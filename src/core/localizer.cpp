@@ -17,6 +17,19 @@ constexpr uint64_t kMaxKeypoints = 1u << 16;  // per keyframe (keypoint ids are 
 
 void PutKeypoints(BinaryWriter* w, const std::vector<Keypoint>& k) { w->PutVector(k); }
 
+void CheckImageSize(int width, int height) {
+  const std::string size = std::to_string(width) + "x" + std::to_string(height);
+  if (width < Localizer::kMinImageSide || height < Localizer::kMinImageSide) {
+    throw std::invalid_argument("image " + size + " is too small for features (at least " +
+                                std::to_string(Localizer::kMinImageSide) + " pixels a side)");
+  }
+  if (static_cast<double>(width) * height > Localizer::kMaxImagePixels) {
+    throw std::invalid_argument("image " + size + " has more than " +
+                                std::to_string(Localizer::kMaxImagePixels / 1000000) +
+                                " megapixels");
+  }
+}
+
 }  // namespace
 
 void LocalizerOptions::Check() const {
@@ -62,22 +75,19 @@ ProcessedImage Localizer::Process(const cv::Mat& gray) const {
   if (gray.type() != CV_8UC1) {
     throw std::invalid_argument("expected an 8-bit single-channel image");
   }
-  const std::string size = std::to_string(gray.cols) + "x" + std::to_string(gray.rows);
-  if (gray.cols < kMinImageSide || gray.rows < kMinImageSide) {
-    throw std::invalid_argument("image " + size + " is too small for features (at least " +
-                                std::to_string(kMinImageSide) + " pixels a side)");
-  }
-  if (static_cast<double>(gray.cols) * gray.rows > kMaxImagePixels) {
-    throw std::invalid_argument("image " + size + " has more than " +
-                                std::to_string(kMaxImagePixels / 1000000) + " megapixels");
-  }
-  ProcessedImage p;
+  CheckImageSize(gray.cols, gray.rows);
   // One extractor per call: OpenCV's detectors are not documented as safe to share.
   const FeatureExtractor extractor(options_.retrieval.features);
-  p.features = extractor.Extract(gray);
+  return Encode(extractor.Extract(gray), gray.cols, gray.rows);
+}
+
+ProcessedImage Localizer::Encode(ImageFeatures features, int width, int height) const {
+  CheckImageSize(width, height);
+  ProcessedImage p;
+  p.features = std::move(features);
   p.bow = encoder_->Encode(p.features);
-  p.width = gray.cols;
-  p.height = gray.rows;
+  p.width = width;
+  p.height = height;
   return p;
 }
 

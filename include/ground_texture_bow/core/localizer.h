@@ -38,6 +38,11 @@ struct LocalizerOptions {
   double meters_per_pixel = 0.00025;  // ground sampling distance, metres per pixel (> 0)
   int threads = 1;                    // threads one image may use: descriptor assignment and
                                       // the query's blocks (1..64); answers do not depend on it
+  // Keep each keyframe's descriptors (32 bytes per ORB keypoint, about 8 KB a keyframe) in the
+  // map. They are needed by QueryKeyframe and by verification from descriptor matches
+  // (verification.matches: descriptors); without them such verification uses word pairs
+  // (effective_matches()). Warehouse maps drop them to fit (docs/RESULTS.md, issue 17).
+  bool keep_descriptors = true;
 
   // Throws std::invalid_argument naming the first bad field.
   void Check() const;
@@ -106,6 +111,9 @@ class Localizer {
   // that is not 8-bit single-channel, or one outside the sizes above; an image without
   // features gives an empty vector.
   ProcessedImage Process(const cv::Mat& gray) const;
+  // The same for features extracted elsewhere (a feature cache): encodes them for an image of
+  // width x height pixels. Throws std::invalid_argument for sizes Process refuses.
+  ProcessedImage Encode(ImageFeatures features, int width, int height) const;
 
   // Inserts a keyframe; returns its id.
   uint32_t Add(const ProcessedImage& image, int64_t stamp_ns, const std::optional<Pose2D>& pose);
