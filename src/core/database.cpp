@@ -90,6 +90,12 @@ size_t BowDatabase::MemoryBytes() const {
   return removed_.capacity() + (compact_ ? compact_->Bytes() : precise_->Bytes());
 }
 
+size_t BowDatabase::MappedBytes() const {
+  std::shared_lock<std::shared_mutex> lock(mutex_);
+  const size_t b = compact_ ? compact_->base_bytes : precise_->base_bytes;
+  return (compact_ ? compact_->base_mapped : precise_->base_mapped) ? b : 0;
+}
+
 size_t BowDatabase::num_entries() const {
   std::shared_lock<std::shared_mutex> lock(mutex_);
   return compact_ ? compact_->Entries() : precise_->Entries();

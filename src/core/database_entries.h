@@ -111,35 +111,46 @@ struct PreciseEntry {
 };
 static_assert(sizeof(PreciseEntry) == 8, "precise entries are 8 bytes");
 
-// Rows of entries: a read-only base segment (loaded) followed by a growable tail (added).
+// Rows of entries: a read-only base segment (loaded), the entries sealed by a map save that is
+// still writing them (BowDatabase::Freeze; empty otherwise), and a growable tail (added).
 template <class E>
 struct PostingIndex {
   struct Row {
     const E* base = nullptr;
     size_t base_count = 0;
+    std::vector<E> sealed;
     std::vector<E> tail;
+    size_t Frozen() const { return base_count + sealed.size(); }
   };
   explicit PostingIndex(uint32_t num_rows) : rows(num_rows) {}
   std::vector<Row> rows;
   std::shared_ptr<const void> keep_alive;  // owns the base segments (mapping or block)
   size_t base_bytes = 0;
+  bool base_mapped = false;  // the base segments lie in a memory-mapped file, not the heap
 
   size_t Entries() const {
     size_t n = 0;
-    for (const Row& r : rows) n += r.base_count + r.tail.size();
+    for (const Row& r : rows) n += r.Frozen() + r.tail.size();
     return n;
   }
   size_t Bytes() const {
     size_t n = rows.capacity() * sizeof(Row) + base_bytes;
-    for (const Row& r : rows) n += r.tail.capacity() * sizeof(E);
+    for (const Row& r : rows) n += (r.sealed.capacity() + r.tail.capacity()) * sizeof(E);
     return n;
   }
-  // Calls f(pointer, count) for the row's base segment and its tail, in order.
+  // Calls f(pointer, count) for the row's base segment, sealed entries and tail, in order.
   template <class F>
   void ForEachSegment(uint32_t row, F&& f) const {
     const Row& r = rows[row];
-    if (r.base_count > 0) f(r.base, r.base_count);
+    ForEachFrozenSegment(row, f);
     if (!r.tail.empty()) f(r.tail.data(), r.tail.size());
+  }
+  // The same without the tail: what a map save writes (immutable until BowDatabase::Rebase).
+  template <class F>
+  void ForEachFrozenSegment(uint32_t row, F&& f) const {
+    const Row& r = rows[row];
+    if (r.base_count > 0) f(r.base, r.base_count);
+    if (!r.sealed.empty()) f(r.sealed.data(), r.sealed.size());
   }
 };
 

@@ -62,11 +62,12 @@ class ChunkedEntryWriter {
 };
 
 // The index header (what Serialize writes before the entries): sizes, options, image flags
-// and the table of non-empty rows.
-template <class E>
+// and the table of non-empty rows, each row's entry count given by `count` (all its entries, or
+// the frozen ones a map save writes).
+template <class E, class Count>
 std::string SerializeHeader(const PostingIndex<E>& index, uint32_t num_rows, uint64_t fingerprint,
                             const BowOptions& o, const std::vector<uint8_t>& removed,
-                            uint64_t* entries_bytes) {
+                            uint64_t* entries_bytes, Count&& count) {
   BinaryWriter w;
   w.Put<uint32_t>(num_rows);
   w.Put<uint64_t>(fingerprint);
@@ -84,8 +85,7 @@ std::string SerializeHeader(const PostingIndex<E>& index, uint32_t num_rows, uin
   std::vector<uint32_t> rows, counts;
   uint64_t total = 0;
   for (uint32_t i = 0; i < num_rows; ++i) {
-    const auto& r = index.rows[i];
-    const uint64_t c = r.base_count + r.tail.size();
+    const uint64_t c = count(index.rows[i]);
     if (c == 0) continue;
     rows.push_back(i);
     counts.push_back(static_cast<uint32_t>(c));
@@ -96,6 +96,11 @@ std::string SerializeHeader(const PostingIndex<E>& index, uint32_t num_rows, uin
   w.Put<uint64_t>(total);
   *entries_bytes = total * sizeof(E);
   return std::move(w.buffer());
+}
+
+template <class Row>
+uint64_t AllEntries(const Row& r) {
+  return r.Frozen() + r.tail.size();
 }
 
 uint64_t Get64(const char* p) {
@@ -120,8 +125,10 @@ void BowDatabase::SerializeTo(
   uint64_t entries_bytes = 0;
   const std::string header =
       compact_
-          ? SerializeHeader(*compact_, num_rows_, fingerprint_, options_, removed_, &entries_bytes)
-          : SerializeHeader(*precise_, num_rows_, fingerprint_, options_, removed_, &entries_bytes);
+          ? SerializeHeader(*compact_, num_rows_, fingerprint_, options_, removed_, &entries_bytes,
+                            AllEntries<PostingIndex<CompactEntry>::Row>)
+          : SerializeHeader(*precise_, num_rows_, fingerprint_, options_, removed_, &entries_bytes,
+                            AllEntries<PostingIndex<PreciseEntry>::Row>);
   const uint64_t hs = header.size();
   begin(8 + hs + entries_bytes);
   write(&hs, 8);
@@ -142,7 +149,98 @@ void BowDatabase::Deserialize(const char* data, size_t size, const std::string& 
   std::shared_ptr<char> block(new char[std::max<size_t>(n, 1)], std::default_delete<char[]>());
   if (n > 0) std::memcpy(block.get(), data + 8 + hs, n);
   const char* entries = block.get();
-  Attach(data + 8, hs, entries, n, std::move(block), source);
+  Attach(data + 8, hs, entries, n, std::move(block), source, false);
+}
+
+BowDatabase::Frozen BowDatabase::Freeze() {
+  std::vector<uint8_t> removed;
+  auto seal = [](auto* index) {
+    for (auto& r : index->rows) {
+      if (r.tail.empty()) continue;
+      if (r.sealed.empty()) {
+        r.sealed.swap(r.tail);
+      } else {  // an earlier save failed before Rebase: its sealed entries stay sealed
+        r.sealed.insert(r.sealed.end(), r.tail.begin(), r.tail.end());
+        r.tail.clear();
+      }
+    }
+  };
+  {
+    std::unique_lock<std::shared_mutex> lock(mutex_);
+    if (compact_) {
+      seal(compact_.get());
+    } else {
+      seal(precise_.get());
+    }
+    removed = removed_;
+  }
+  Frozen f;
+  f.images = static_cast<uint32_t>(removed.size());
+  f.removed = std::move(removed);
+  return f;
+}
+
+void BowDatabase::DescribeFrozen(Frozen* f) const {
+  // Without the lock: base and sealed entries change only in Rebase, which this saver calls.
+  auto frozen = [](const auto& r) -> uint64_t { return r.Frozen(); };
+  f->header = compact_ ? SerializeHeader(*compact_, num_rows_, fingerprint_, options_, f->removed,
+                                         &f->entries_bytes, frozen)
+                       : SerializeHeader(*precise_, num_rows_, fingerprint_, options_, f->removed,
+                                         &f->entries_bytes, frozen);
+}
+
+void BowDatabase::WriteFrozen(
+    const std::function<void(const void* data, size_t size)>& write) const {
+  auto all = [&](const auto& index) {
+    for (uint32_t i = 0; i < index.rows.size(); ++i) {
+      index.ForEachFrozenSegment(i, [&](const auto* data, size_t count) {
+        write(data, count * sizeof(*data));
+      });
+    }
+  };
+  if (compact_) {
+    all(*compact_);
+  } else {
+    all(*precise_);
+  }
+}
+
+void BowDatabase::Rebase(const Frozen& frozen, const char* entries,
+                         std::shared_ptr<const void> keep_alive) {
+  std::vector<std::vector<CompactEntry>> compact_garbage;
+  std::vector<std::vector<PreciseEntry>> precise_garbage;
+  auto rebase = [&](auto* index, auto* garbage) {
+    using E = std::remove_reference_t<decltype(index->rows[0].tail[0])>;
+    const char* p = entries;
+    for (auto& r : index->rows) {
+      const size_t n = r.Frozen();
+      if (n == 0) continue;
+      r.base = reinterpret_cast<const E*>(p);
+      r.base_count = n;
+      p += n * sizeof(E);
+      if (!r.sealed.empty()) garbage->push_back(std::move(r.sealed));
+      r.sealed = std::vector<E>();
+    }
+    if (static_cast<uint64_t>(p - entries) != frozen.entries_bytes) {
+      throw std::logic_error("BowDatabase::Rebase: the index changed since Freeze");
+    }
+    index->keep_alive = std::move(keep_alive);
+    index->base_bytes = frozen.entries_bytes;
+    index->base_mapped = true;
+  };
+  std::unique_lock<std::shared_mutex> lock(mutex_);
+  if (compact_) {
+    rebase(compact_.get(), &compact_garbage);
+  } else {
+    rebase(precise_.get(), &precise_garbage);
+  }
+  lock.unlock();  // the heap copies are freed without holding up queries
+}
+
+void BowDatabase::AttachMapped(const char* header, size_t header_size, const char* entries,
+                               size_t entries_size, std::shared_ptr<const void> keep_alive,
+                               const std::string& source) {
+  Attach(header, header_size, entries, entries_size, std::move(keep_alive), source, true);
 }
 
 void BowDatabase::Save(const std::filesystem::path& path) const {
@@ -151,8 +249,10 @@ void BowDatabase::Save(const std::filesystem::path& path) const {
   const uint32_t entry_size = compact_ ? sizeof(CompactEntry) : sizeof(PreciseEntry);
   const std::string header =
       compact_
-          ? SerializeHeader(*compact_, num_rows_, fingerprint_, options_, removed_, &entries_bytes)
-          : SerializeHeader(*precise_, num_rows_, fingerprint_, options_, removed_, &entries_bytes);
+          ? SerializeHeader(*compact_, num_rows_, fingerprint_, options_, removed_, &entries_bytes,
+                            AllEntries<PostingIndex<CompactEntry>::Row>)
+          : SerializeHeader(*precise_, num_rows_, fingerprint_, options_, removed_, &entries_bytes,
+                            AllEntries<PostingIndex<PreciseEntry>::Row>);
   std::string head(kFixedHeader, '\0');
   std::memcpy(&head[0], kDatabaseMagic, 8);
   std::memcpy(&head[8], &kDatabaseVersion, 4);
@@ -236,12 +336,12 @@ void BowDatabase::Load(const std::filesystem::path& path, int threads) {
     fail("database has " + std::to_string(entry_size) + "-byte entries; these BoW options use " +
          (options_.compact_postings ? "compact 6-byte" : "precise 8-byte") + " entries");
   }
-  Attach(d + kFixedHeader, hs, d + at, entries_bytes, map, src);
+  Attach(d + kFixedHeader, hs, d + at, entries_bytes, map, src, true);
 }
 
 void BowDatabase::Attach(const char* header, size_t header_size, const char* entries,
                          size_t entries_size, std::shared_ptr<const void> keep_alive,
-                         const std::string& source) {
+                         const std::string& source, bool mapped) {
   BinaryReader r(header, header_size, source);
   const uint32_t rows = r.Get<uint32_t>();
   const uint64_t fp = r.Get<uint64_t>();
@@ -297,6 +397,7 @@ void BowDatabase::Attach(const char* header, size_t header_size, const char* ent
     }
     fresh->keep_alive = keep_alive;
     fresh->base_bytes = entries_size;
+    fresh->base_mapped = mapped;
   };
   std::unique_ptr<PostingIndex<CompactEntry>> c;
   std::unique_ptr<PostingIndex<PreciseEntry>> pr;

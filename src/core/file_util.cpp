@@ -77,7 +77,8 @@ AtomicFileWriter::AtomicFileWriter(fs::path path) : path_(std::move(path)) {
   RemoveStaleTemporaries(dir, path_.filename().string());
   tmp_ = dir / (TemporaryPrefix(path_.filename().string()) + std::to_string(::getpid()) + "-" +
                 RandomSuffix());
-  fd_ = ::open(tmp_.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0644);
+  // Read access too: CommitAndMap maps what was written.
+  fd_ = ::open(tmp_.c_str(), O_RDWR | O_CREAT | O_EXCL | O_CLOEXEC, 0644);
   if (fd_ < 0) throw std::runtime_error("cannot write '" + path_.string() + "': " + Errno());
 }
 
@@ -125,9 +126,23 @@ void AtomicFileWriter::Write(const void* data, size_t size) {
   written_ += size;
 }
 
-void AtomicFileWriter::Commit() {
+void AtomicFileWriter::Commit() { Publish(false); }
+
+std::shared_ptr<const MappedFile> AtomicFileWriter::CommitAndMap() { return Publish(true); }
+
+std::shared_ptr<const MappedFile> AtomicFileWriter::Publish(bool map) {
   if (fd_ < 0) throw std::logic_error("AtomicFileWriter: commit after commit or failure");
   if (::fsync(fd_) != 0) Fail(Errno());
+  std::shared_ptr<const MappedFile> mapped;
+  if (map) {
+    // Mapped before the rename: the mapping holds exactly these bytes, whatever replaces the
+    // path later.
+    try {
+      mapped = MappedFile::FromDescriptor(fd_, path_);
+    } catch (const std::exception& e) {
+      Fail(e.what());
+    }
+  }
   const int fd = fd_;
   fd_ = -1;
   if (::close(fd) != 0) {
@@ -148,16 +163,27 @@ void AtomicFileWriter::Commit() {
     ::fsync(dfd);
     ::close(dfd);
   }
+  return mapped;
 }
 
 std::shared_ptr<const MappedFile> MappedFile::Open(const fs::path& path) {
   const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
   if (fd < 0) throw std::runtime_error("cannot read '" + path.string() + "': " + Errno());
+  try {
+    auto m = FromDescriptor(fd, path);
+    ::close(fd);  // the mapping keeps the file
+    return m;
+  } catch (...) {
+    ::close(fd);
+    throw;
+  }
+}
+
+std::shared_ptr<const MappedFile> MappedFile::FromDescriptor(int fd, const fs::path& path) {
   struct stat st {};
   const bool stat_ok = ::fstat(fd, &st) == 0;
   if (!stat_ok || !S_ISREG(st.st_mode)) {
     const std::string why = stat_ok ? std::string("not a regular file") : Errno();
-    ::close(fd);
     throw std::runtime_error("cannot read '" + path.string() + "': " + why);
   }
   const size_t size = static_cast<size_t>(st.st_size);
@@ -165,12 +191,9 @@ std::shared_ptr<const MappedFile> MappedFile::Open(const fs::path& path) {
   if (size > 0) {
     p = ::mmap(nullptr, size, PROT_READ, MAP_PRIVATE, fd, 0);
     if (p == MAP_FAILED) {
-      const std::string why = Errno();
-      ::close(fd);
-      throw std::runtime_error("cannot map '" + path.string() + "': " + why);
+      throw std::runtime_error("cannot map '" + path.string() + "': " + Errno());
     }
   }
-  ::close(fd);  // the mapping keeps the file
   return std::shared_ptr<const MappedFile>(new MappedFile(static_cast<const char*>(p), size));
 }
 

@@ -6,16 +6,13 @@
 #include <stdexcept>
 
 #include "ground_texture_bow/core/binary_io.h"
+#include "keyframe_store.h"
 
 namespace gtbow {
 
 namespace {
 
-constexpr char kMapMagic[8] = {'G', 'T', 'B', 'W', 'M', 'A', 'P', '\0'};
-constexpr uint32_t kMapVersion = 1;
 constexpr uint64_t kMaxKeypoints = 1u << 16;  // per keyframe (keypoint ids are 16-bit)
-
-void PutKeypoints(BinaryWriter* w, const std::vector<Keypoint>& k) { w->PutVector(k); }
 
 void CheckImageSize(int width, int height) {
   const std::string size = std::to_string(width) + "x" + std::to_string(height);
@@ -61,9 +58,33 @@ Localizer::Localizer(std::shared_ptr<Vocabulary> vocabulary, std::string vocabul
   vocabulary_->set_checks(vo.checks);
   encoder_ = std::make_unique<BowEncoder>(*vocabulary_, options_.retrieval.bow);
   encoder_->set_threads(options_.threads);
-  database_ = std::make_unique<BowDatabase>(encoder_->num_rows(), options_.retrieval.bow,
-                                            vocabulary_->fingerprint());
-  database_->set_query_threads(options_.threads);
+  const bool sift = options_.retrieval.features.type == FeatureType::kSift;
+  descriptor_cols_ = sift ? 128 : 32;
+  descriptor_type_ = sift ? CV_32F : CV_8U;
+  verification_ = options_.retrieval.verification;
+  if (!options_.keep_descriptors) verification_.matches = MatchSource::kWords;
+  database_ = NewDatabase();
+  keyframes_ = NewStore();
+}
+
+Localizer::~Localizer() = default;
+
+std::unique_ptr<BowDatabase> Localizer::NewDatabase() const {
+  auto db = std::make_unique<BowDatabase>(encoder_->num_rows(), options_.retrieval.bow,
+                                          vocabulary_->fingerprint());
+  db->set_query_threads(options_.threads);
+  return db;
+}
+
+size_t Localizer::PayloadStride() const {
+  return sizeof(detail::PackedKeypoint) +
+         (options_.keep_descriptors
+              ? static_cast<size_t>(descriptor_cols_) * CV_ELEM_SIZE(descriptor_type_)
+              : 0);
+}
+
+std::unique_ptr<detail::KeyframeStore> Localizer::NewStore() const {
+  return std::make_unique<detail::KeyframeStore>(PayloadStride());
 }
 
 ImageGeometry Localizer::GeometryOf(int width, int height) const {
@@ -99,21 +120,34 @@ uint32_t Localizer::Add(const ProcessedImage& image, int64_t stamp_ns,
   if (image.features.size() > kMaxKeypoints) {
     throw std::invalid_argument("more than 65536 keypoints in one image");
   }
+  CheckImageSize(image.width, image.height);
+  const cv::Mat& d = image.features.descriptors;
+  if (options_.keep_descriptors && !image.features.keypoints.empty() &&
+      (d.rows != static_cast<int>(image.features.size()) || d.cols != descriptor_cols_ ||
+       d.type() != descriptor_type_)) {
+    throw std::invalid_argument("keyframe descriptors do not match its keypoints and extractor");
+  }
+  // Packed outside the lock: the store keeps what the file keeps.
+  detail::KeyframeRecord record;
+  record.stamp_ns = stamp_ns;
+  if (pose) {
+    record.flags |= detail::KeyframeRecord::kHasPose;
+    record.x = pose->x;
+    record.y = pose->y;
+    record.theta = pose->theta;
+  }
+  record.width = static_cast<uint32_t>(image.width);
+  record.height = static_cast<uint32_t>(image.height);
+  record.num_keypoints = static_cast<uint32_t>(image.features.size());
+  const std::string payload =
+      detail::MakePayload(image.features.keypoints, options_.keep_descriptors ? d : cv::Mat(),
+                          record.width, record.height);
   std::unique_lock<std::shared_mutex> lock(mutex_);
   const uint32_t id = database_->Add(image.bow);
-  Keyframe k;
-  k.id = id;
-  k.stamp_ns = stamp_ns;
-  k.has_pose = pose.has_value();
-  if (pose) k.map_from_camera = *pose;
-  k.width = image.width;
-  k.height = image.height;
-  k.keypoints = image.features.keypoints;
-  k.descriptors = image.features.descriptors.clone();
-  if (keyframes_.size() != id) {
+  if (keyframes_->size() != id) {
     throw std::logic_error("keyframe ids out of step with the database");
   }
-  keyframes_.push_back(std::move(k));
+  keyframes_->Append(record, payload);
   return id;
 }
 
@@ -129,12 +163,22 @@ int LoopClosureCandidate(const std::vector<Candidate>& candidates,
   return best;
 }
 
+detail::KeyframeView Localizer::View(uint32_t id) const { return keyframes_->Get(id); }
+
+std::string Localizer::Damaged(uint32_t id) const {
+  const detail::KeyframeView v = View(id);
+  if (v.verify && Checksum64(v.payload, v.payload_bytes) != v.record->payload_checksum) {
+    return "keyframe " + std::to_string(id) + "'s stored keypoints fail their checksum";
+  }
+  return "";
+}
+
 MapAccess Localizer::RelativeAccess() const {
   MapAccess map;
-  map.keypoints = [this](uint32_t id) -> const std::vector<Keypoint>& {
-    return keyframes_.at(id).keypoints;
+  map.keypoints = [this](uint32_t id) { return detail::PayloadKeypoints(View(id)); };
+  map.descriptors = [this](uint32_t id) {
+    return detail::PayloadDescriptors(View(id), descriptor_cols_, descriptor_type_);
   };
-  map.descriptors = [this](uint32_t id) { return keyframes_.at(id).descriptors; };
   map.pose = [](uint32_t) { return Pose2D{}; };
   return map;
 }
@@ -148,20 +192,23 @@ std::vector<Candidate> Localizer::QueryLocked(const BowVector& bow, int width, i
   const auto results = database_->Query(bow, k + excluded, verify);
   for (const QueryResult& r : results) {
     if (r.image >= exclude_from && r.image < exclude_to) continue;
-    const Keyframe& kf = keyframes_.at(r.image);
+    const detail::KeyframeRecord& kf = *View(r.image).record;
     Candidate c;
     c.id = r.image;
     c.score = r.score;
     c.stamp_ns = kf.stamp_ns;
-    c.has_pose = kf.has_pose;
-    c.map_from_camera = kf.map_from_camera;
+    c.has_pose = (kf.flags & detail::KeyframeRecord::kHasPose) != 0;
+    c.map_from_camera = {kf.x, kf.y, kf.theta};
     if (verify) {
-      if (kf.width != width || kf.height != height) {
+      std::string damaged;
+      if (kf.width != static_cast<uint32_t>(width) || kf.height != static_cast<uint32_t>(height)) {
         c.relative.reason = "the images differ in size";
+      } else if (!(damaged = Damaged(r.image)).empty()) {
+        c.relative.reason = damaged;
       } else {
         // The relative pose: the match image at the origin.
         c.relative = VerifyCandidate(r, bow, RelativeAccess(), GeometryOf(width, height),
-                                     options_.retrieval.verification, &c.inliers);
+                                     verification_, &c.inliers);
         c.verified = c.relative.success;
       }
     }
@@ -178,24 +225,30 @@ std::vector<Candidate> Localizer::Query(const ProcessedImage& image, size_t k, b
 }
 
 std::vector<Candidate> Localizer::QueryKeyframe(uint32_t id, size_t k, bool verify) const {
-  Keyframe kf;
+  ImageFeatures f;
+  int width = 0, height = 0;
   {
     std::shared_lock<std::shared_mutex> lock(mutex_);
-    if (id >= keyframes_.size()) {
+    if (id >= keyframes_->size()) {
       throw std::out_of_range("no keyframe " + std::to_string(id) + " (the map has " +
-                              std::to_string(keyframes_.size()) + ")");
+                              std::to_string(keyframes_->size()) + ")");
     }
-    kf.keypoints = keyframes_[id].keypoints;
-    kf.descriptors = keyframes_[id].descriptors;
-    kf.width = keyframes_[id].width;
-    kf.height = keyframes_[id].height;
+    if (!options_.keep_descriptors) {
+      throw std::invalid_argument(
+          "this map keeps no keyframe descriptors (keep_descriptors false): keyframe " +
+          std::to_string(id) + " cannot be queried again");
+    }
+    const std::string damaged = Damaged(id);
+    if (!damaged.empty()) throw std::runtime_error(damaged);
+    const detail::KeyframeView v = View(id);
+    f.keypoints = detail::PayloadKeypoints(v);
+    f.descriptors = detail::PayloadDescriptors(v, descriptor_cols_, descriptor_type_).clone();
+    width = static_cast<int>(v.record->width);
+    height = static_cast<int>(v.record->height);
   }
-  ImageFeatures f;
-  f.keypoints = std::move(kf.keypoints);
-  f.descriptors = kf.descriptors;
   const BowVector bow = encoder_->Encode(f);  // outside the lock: the heavy part
   std::shared_lock<std::shared_mutex> lock(mutex_);
-  return QueryLocked(bow, kf.width, kf.height, k, verify, id, id + 1);
+  return QueryLocked(bow, width, height, k, verify, id, id + 1);
 }
 
 Localization Localizer::Localize(const ProcessedImage& image) const {
@@ -205,215 +258,90 @@ Localization Localizer::Localize(const ProcessedImage& image) const {
     return none;
   }
   std::shared_lock<std::shared_mutex> lock(mutex_);
-  if (keyframes_.empty()) {
+  if (keyframes_->size() == 0) {
     none.reason = "the map is empty";
     return none;
   }
   // The evaluation's own verification (pose.cpp), over this map's keyframes.
   MapAccess map = RelativeAccess();
-  map.pose = [this](uint32_t id) { return keyframes_.at(id).map_from_camera; };
-  map.unusable = [&](uint32_t id) -> std::string {
-    const Keyframe& kf = keyframes_.at(id);
-    if (!kf.has_pose) return "no pose";
-    if (kf.width != image.width || kf.height != image.height) return "other image size";
-    return "";
+  map.pose = [this](uint32_t id) {
+    const detail::KeyframeRecord& r = *View(id).record;
+    return Pose2D{r.x, r.y, r.theta};
   };
-  const auto results = database_->Query(
-      image.bow, static_cast<size_t>(options_.retrieval.verification.candidates), true);
+  map.unusable = [&](uint32_t id) -> std::string {
+    const detail::KeyframeRecord& kf = *View(id).record;
+    if ((kf.flags & detail::KeyframeRecord::kHasPose) == 0) return "no pose";
+    if (kf.width != static_cast<uint32_t>(image.width) ||
+        kf.height != static_cast<uint32_t>(image.height))
+      return "other image size";
+    return Damaged(id);
+  };
+  const auto results =
+      database_->Query(image.bow, static_cast<size_t>(verification_.candidates), true);
   return VerifyCandidates(results, image.bow, map, GeometryOf(image.width, image.height),
-                          options_.retrieval.verification);
-}
-
-namespace {
-
-// One keyframe's record in the map file, and its size in bytes (to announce the payload's size
-// before streaming it).
-void PutKeyframe(BinaryWriter* w, const Keyframe& k) {
-  w->Put<int64_t>(k.stamp_ns);
-  w->Put<uint8_t>(k.has_pose ? 1 : 0);
-  w->Put<double>(k.map_from_camera.x);
-  w->Put<double>(k.map_from_camera.y);
-  w->Put<double>(k.map_from_camera.theta);
-  w->Put<int32_t>(k.width);
-  w->Put<int32_t>(k.height);
-  PutKeypoints(w, k.keypoints);
-  const cv::Mat d = k.descriptors.isContinuous() ? k.descriptors : k.descriptors.clone();
-  w->Put<int32_t>(d.rows);
-  w->Put<int32_t>(d.cols);
-  w->Put<int32_t>(d.type());
-  w->PutArray(d.data, d.empty() ? 0 : d.total() * d.elemSize());
-}
-
-uint64_t KeyframeBytes(const Keyframe& k) {
-  const uint64_t descriptors =
-      k.descriptors.empty() ? 0 : k.descriptors.total() * k.descriptors.elemSize();
-  return 8 + 1 + 3 * 8 + 2 * 4 + (8 + k.keypoints.size() * sizeof(Keypoint)) + 3 * 4 +
-         (8 + descriptors);
-}
-
-}  // namespace
-
-void Localizer::Save(const std::filesystem::path& path) const {
-  // Streamed into the file piece by piece (the database's rows, then one keyframe at a time):
-  // a save needs no second copy of the map in memory.
-  BinaryWriter head, w;
-  std::unique_ptr<FramedFileWriter> file;
-  {
-    std::shared_lock<std::shared_mutex> lock(mutex_);
-    head.PutString(vocabulary_path_);
-    head.Put<uint64_t>(vocabulary_->fingerprint());
-    head.PutString(FormatRetrievalConfig(options_.retrieval));
-    head.Put<double>(options_.meters_per_pixel);
-    uint64_t keyframe_bytes = 8;
-    for (const Keyframe& k : keyframes_) keyframe_bytes += KeyframeBytes(k);
-    database_->SerializeTo(
-        [&](uint64_t database_bytes) {
-          head.Put<uint64_t>(database_bytes);  // the database as one string (PutString's layout)
-          file = std::make_unique<FramedFileWriter>(
-              path, kMapMagic, kMapVersion, head.buffer().size() + database_bytes + keyframe_bytes);
-          file->Write(head.buffer());
-        },
-        [&](const void* data, size_t size) { file->Write(data, size); });
-    w.Put<uint64_t>(keyframes_.size());
-    for (const Keyframe& k : keyframes_) {
-      PutKeyframe(&w, k);
-      if (w.buffer().size() >= (1u << 20)) {
-        file->Write(w.buffer());
-        w.buffer().clear();
-      }
-    }
-    file->Write(w.buffer());
-  }
-  file->Commit();  // flush and rename without holding the map
-}
-
-std::string Localizer::VocabularyPathOf(const std::filesystem::path& path) {
-  const FramedPayload payload = ReadFramedFile(path, kMapMagic, kMapVersion, "map");
-  BinaryReader r(payload.data(), payload.size(), path.string());
-  return r.GetString(1u << 16);
-}
-
-void Localizer::Load(const std::filesystem::path& path) {
-  const FramedPayload payload = ReadFramedFile(path, kMapMagic, kMapVersion, "map");
-  const std::string source = path.string();
-  BinaryReader r(payload.data(), payload.size(), source);
-  r.GetString(1u << 16);  // vocabulary path: informative (VocabularyPathOf)
-  if (r.Get<uint64_t>() != vocabulary_->fingerprint()) {
-    r.Fail("the map was built with another vocabulary than " + vocabulary_path_);
-  }
-  const std::string config = r.GetString(1u << 20);
-  if (config != FormatRetrievalConfig(options_.retrieval)) {
-    // Only the BoW options shape the stored index (the database checks them); feature
-    // options change what new images look like. Both must match for answers to be consistent.
-    // A map written before a key existed has that key's default.
-    std::string diff;
-    try {
-      diff = RetrievalConfigDifference(ParseRetrievalConfig(config, "the map's options"), "the map",
-                                       options_.retrieval, "this node");
-    } catch (const std::exception& e) {
-      r.Fail(std::string("the map's retrieval options cannot be read: ") + e.what());
-    }
-    if (!diff.empty()) {
-      r.Fail("the map was built with other retrieval options (another preset or extractor): " +
-             diff);
-    }
-  }
-  const double mpp = r.Get<double>();
-  if (mpp != options_.meters_per_pixel) {
-    r.Fail("the map was built with meters_per_pixel " + std::to_string(mpp) + ", this node uses " +
-           std::to_string(options_.meters_per_pixel));
-  }
-  const std::string db_blob = r.GetString(payload.size());
-  auto db = std::make_unique<BowDatabase>(encoder_->num_rows(), options_.retrieval.bow,
-                                          vocabulary_->fingerprint());
-  db->set_query_threads(options_.threads);
-  db->Deserialize(db_blob.data(), db_blob.size(), source + " (database)");
-  const uint64_t n = r.Get<uint64_t>();
-  if (n != db->next_id()) r.Fail("keyframe count does not match the database");
-  std::vector<Keyframe> keyframes;
-  keyframes.reserve(n);
-  for (uint64_t i = 0; i < n; ++i) {
-    Keyframe k;
-    k.id = static_cast<uint32_t>(i);
-    k.stamp_ns = r.Get<int64_t>();
-    k.has_pose = r.Get<uint8_t>() != 0;
-    k.map_from_camera.x = r.Get<double>();
-    k.map_from_camera.y = r.Get<double>();
-    k.map_from_camera.theta = r.Get<double>();
-    k.width = r.Get<int32_t>();
-    k.height = r.Get<int32_t>();
-    k.keypoints = r.GetVector<Keypoint>(kMaxKeypoints);
-    const int rows = r.Get<int32_t>(), cols = r.Get<int32_t>(), type = r.Get<int32_t>();
-    const auto bytes = r.GetVector<uint8_t>(kMaxKeypoints * 512);
-    if (rows < 0 || cols < 0 || static_cast<size_t>(rows) != k.keypoints.size() ||
-        (type != CV_8U && type != CV_32F) ||
-        bytes.size() != static_cast<size_t>(rows) * cols * (type == CV_8U ? 1 : 4) ||
-        k.width <= 0 || k.height <= 0) {
-      r.Fail("keyframe " + std::to_string(i) + " is malformed");
-    }
-    const Pose2D& p = k.map_from_camera;
-    if (k.has_pose && !(std::isfinite(p.x) && std::isfinite(p.y) && std::isfinite(p.theta))) {
-      r.Fail("keyframe " + std::to_string(i) + " has a non-finite pose");
-    }
-    for (const Keypoint& kp : k.keypoints) {
-      if (!(std::isfinite(kp.x) && std::isfinite(kp.y) && std::isfinite(kp.angle) &&
-            std::isfinite(kp.size))) {
-        r.Fail("keyframe " + std::to_string(i) + " has a non-finite keypoint");
-      }
-    }
-    // Descriptors as this node's extractor makes them (ORB: 32 bytes; SIFT: 128 floats).
-    const bool sift = options_.retrieval.features.type == FeatureType::kSift;
-    if (rows > 0 && (type != (sift ? CV_32F : CV_8U) || cols != (sift ? 128 : 32))) {
-      r.Fail("keyframe " + std::to_string(i) + " has descriptors of another kind (" +
-             std::to_string(cols) + " columns) than this node's features");
-    }
-    if (rows > 0) {
-      k.descriptors.create(rows, cols, type);
-      std::memcpy(k.descriptors.data, bytes.data(), bytes.size());
-    }
-    keyframes.push_back(std::move(k));
-  }
-  if (r.remaining() != 0) r.Fail("trailing bytes after the keyframes");
-  std::unique_lock<std::shared_mutex> lock(mutex_);
-  database_ = std::move(db);
-  keyframes_ = std::move(keyframes);
+                          verification_);
 }
 
 void Localizer::Reset() {
-  auto db = std::make_unique<BowDatabase>(encoder_->num_rows(), options_.retrieval.bow,
-                                          vocabulary_->fingerprint());
-  db->set_query_threads(options_.threads);
+  std::shared_ptr<BowDatabase> db = NewDatabase();
+  auto store = NewStore();
   std::unique_lock<std::shared_mutex> lock(mutex_);
-  database_ = std::move(db);
-  keyframes_.clear();
+  database_.swap(db);
+  keyframes_.swap(store);
+  ++generation_;
+  lock.unlock();  // the old map is freed without holding up callers
 }
 
 size_t Localizer::size() const {
   std::shared_lock<std::shared_mutex> lock(mutex_);
-  return keyframes_.size();
+  return keyframes_->size();
 }
+
+size_t Localizer::HeapBytes() const {
+  std::shared_lock<std::shared_mutex> lock(mutex_);
+  return database_->MemoryBytes() - database_->MappedBytes() + keyframes_->MemoryBytes();
+}
+
+namespace {
+
+Keyframe KeyframeOf(uint32_t id, const detail::KeyframeRecord& r) {
+  Keyframe k;
+  k.id = id;
+  k.stamp_ns = r.stamp_ns;
+  k.has_pose = (r.flags & detail::KeyframeRecord::kHasPose) != 0;
+  k.map_from_camera = {r.x, r.y, r.theta};
+  k.width = static_cast<int>(r.width);
+  k.height = static_cast<int>(r.height);
+  return k;
+}
+
+}  // namespace
 
 std::optional<Keyframe> Localizer::KeyframeInfo(uint32_t id) const {
   std::shared_lock<std::shared_mutex> lock(mutex_);
-  if (id >= keyframes_.size()) return std::nullopt;
-  Keyframe k = keyframes_[id];
-  k.descriptors = cv::Mat();
+  if (id >= keyframes_->size()) return std::nullopt;
+  const detail::KeyframeView v = View(id);
+  Keyframe k = KeyframeOf(id, *v.record);
+  if (Damaged(id).empty()) k.keypoints = detail::PayloadKeypoints(v);
   return k;
 }
 
 std::vector<Keyframe> Localizer::Keyframes() const {
   std::shared_lock<std::shared_mutex> lock(mutex_);
   std::vector<Keyframe> out;
-  out.reserve(keyframes_.size());
-  for (const Keyframe& k : keyframes_) {
-    Keyframe c;
-    c.id = k.id;
-    c.stamp_ns = k.stamp_ns;
-    c.has_pose = k.has_pose;
-    c.map_from_camera = k.map_from_camera;
-    c.width = k.width;
-    c.height = k.height;
-    out.push_back(std::move(c));
+  out.reserve(keyframes_->size());
+  for (uint32_t id = 0; id < keyframes_->size(); ++id) out.push_back(KeyframeOf(id, *View(id).record));
+  return out;
+}
+
+std::vector<Keypoint> StoredKeypoints(const std::vector<Keypoint>& keypoints, int width,
+                                      int height) {
+  const double step = detail::CoordinateStep(static_cast<uint32_t>(std::max(width, 0)),
+                                             static_cast<uint32_t>(std::max(height, 0)));
+  std::vector<Keypoint> out;
+  out.reserve(keypoints.size());
+  for (const Keypoint& k : keypoints) {
+    out.push_back(detail::UnpackKeypoint(detail::PackKeypoint(k, step), step));
   }
   return out;
 }

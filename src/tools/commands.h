@@ -12,6 +12,7 @@ void RegisterTrainVocab(CLI::App& app);
 void RegisterBenchRetrieval(CLI::App& app);
 void RegisterBenchScaling(CLI::App& app);  // gtbow bench
 void RegisterEval(CLI::App& app);
+void RegisterMapCommands(CLI::App& app);  // map-info, convert-map
 
 }  // namespace tools
 }  // namespace gtbow

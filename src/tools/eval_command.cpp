@@ -18,6 +18,7 @@
 #include <thread>
 
 #include "commands.h"
+#include "ground_texture_bow/core/localizer.h"
 #include "eval_results.h"
 #include "ground_texture_bow/core/binary_io.h"
 #include "ground_texture_bow/core/config.h"
@@ -146,9 +147,18 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
     if (pr.scaling.empty() || pr.scaling.back().images != db.size()) checkpoint();
   }
   pr.db_images = db.size();
+  // The map's keypoints as the node's map keeps them (quantised, StoredKeypoints), unless
+  // --exact-keypoints: the node verifies against those.
+  std::vector<std::vector<Keypoint>> stored;
+  if (!a.exact_keypoints) {
+    stored.resize(db_feats.size());
+    for (size_t i = 0; i < db_feats.size(); ++i) {
+      stored[i] = StoredKeypoints(db_feats[i].keypoints, geo.width, geo.height);
+    }
+  }
   MapAccess map;
   map.keypoints = [&](uint32_t i) -> const std::vector<Keypoint>& {
-    return db_feats.at(i).keypoints;
+    return a.exact_keypoints ? db_feats.at(i).keypoints : stored.at(i);
   };
   map.descriptors = [&](uint32_t i) { return db_feats.at(i).descriptors; };
   map.pose = [&](uint32_t i) { return db_pose.at(i); };
@@ -455,6 +465,9 @@ void RegisterEval(CLI::App& app) {
   cmd->add_option(
       "--dump-poses", a->dump_poses,
       "CSV of every query's estimated pose (query,x,y,theta,inliers; empty pose: no estimate)");
+  cmd->add_flag("--exact-keypoints", a->exact_keypoints,
+                "Verify against the map images' keypoints unquantised (the node's map stores "
+                "them quantised; this measures what that costs)");
   cmd->add_flag("-q,--quiet", a->quiet, "No progress bars");
   cmd->callback([a]() { RunEval(*a); });
 }

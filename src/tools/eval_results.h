@@ -50,6 +50,7 @@ struct EvalArgs {
   int words = 0;
   std::string dump_rankings;
   std::string dump_poses;
+  bool exact_keypoints = false;  // verify against unquantised map keypoints (ablation)
   bool quiet = false;
 };
 

@@ -22,6 +22,7 @@ int main(int argc, char** argv) {
   gtbow::tools::RegisterBenchRetrieval(app);
   gtbow::tools::RegisterBenchScaling(app);
   gtbow::tools::RegisterEval(app);
+  gtbow::tools::RegisterMapCommands(app);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

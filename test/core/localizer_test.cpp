@@ -20,6 +20,7 @@
 #include "ground_texture_bow/core/file_util.h"
 #include "ground_texture_bow/eval/synth/generator.h"
 #include "test_scene.h"
+#include "map_v1.h"
 #include "test_util.h"
 
 namespace gtbow {
@@ -305,10 +306,18 @@ TEST_F(LocalizerFiles, DamagedOrForeignMapsAreRefusedAndTheCurrentMapKept) {
     }
     EXPECT_EQ(target.size(), 1u) << what;  // the current map is kept
   };
-  std::string flipped = good;
-  flipped[flipped.size() / 2] ^= 0x40;
-  expect_refused(flipped, "a flipped byte", "checksum mismatch");
+  const fuzz::MapLayout layout = fuzz::ParseMapLayout(good);
+  ASSERT_TRUE(layout.ok);
+  // A flipped byte in the index or the records: found by the 64 MB checksums at load.
+  for (int section : {1, 2}) {
+    std::string flipped = good;
+    flipped[layout.offset[section] + layout.size[section] / 2] ^= 0x40;
+    expect_refused(flipped, "a flipped byte in section " + std::to_string(section),
+                   "checksum mismatch");
+  }
   expect_refused(good.substr(0, good.size() / 3), "a truncated file", "truncated");
+  expect_refused(good.substr(0, good.size() - 1), "a file short of one byte", "truncated");
+  expect_refused(good + "x", "a file with a byte too many", "trailing bytes");
   expect_refused("not a map at all", "a foreign file", "too short");
   std::string future = good;
   future[8] = 99;  // the format version (after the 8-byte magic number)
@@ -319,24 +328,8 @@ TEST_F(LocalizerFiles, DamagedOrForeignMapsAreRefusedAndTheCurrentMapKept) {
     vocab_file = ReadFile(dir() / "v.gtvoc");
   }
   expect_refused(vocab_file, "a vocabulary file", "wrong magic number");
-  // Well-formed, checksummed files with a NaN in a keyframe pose or keypoint: the value is
-  // found by its bytes (unique in the file), replaced, and the checksum made right again.
-  auto with_nan = [&](const void* value, size_t size) {
-    const std::string needle(static_cast<const char*>(value), size);
-    const size_t at = good.find(needle);
-    EXPECT_NE(at, std::string::npos);
-    EXPECT_EQ(good.find(needle, at + 1), std::string::npos) << "the value is not unique";
-    std::string bytes = good;
-    if (size == sizeof(double)) {
-      const double nan = std::nan("");
-      std::memcpy(&bytes[at], &nan, sizeof nan);
-    } else {
-      const float nan = std::nanf("");
-      std::memcpy(&bytes[at], &nan, sizeof nan);
-    }
-    return fuzz::RepairFramed(bytes);
-  };
-  // A pose coordinate of some keyframe whose bytes occur once in the file.
+  // Well-formed, checksummed files with a NaN in a keyframe pose: the value is found by its
+  // bytes (unique in the file), replaced, and the checksums made right again.
   auto unique_in_file = [&](const void* value, size_t size) {
     const std::string needle(static_cast<const char*>(value), size);
     const size_t at = good.find(needle);
@@ -354,24 +347,51 @@ TEST_F(LocalizerFiles, DamagedOrForeignMapsAreRefusedAndTheCurrentMapKept) {
     }
   }
   ASSERT_GE(posed, 0);
-  expect_refused(with_nan(&coordinate, sizeof coordinate), "a NaN pose",
-                 "keyframe " + std::to_string(posed) + " has a non-finite pose");
-  const auto k6 = loc->KeyframeInfo(6);
-  ASSERT_TRUE(k6.has_value());
-  ASSERT_FALSE(k6->keypoints.empty());
-  // The x of a keypoint of keyframe 6 whose bytes occur once in the file.
-  float x6 = 0;
-  bool unique = false;
-  for (const Keypoint& kp : k6->keypoints) {
-    if (unique_in_file(&kp.x, sizeof kp.x)) {
-      x6 = kp.x;
-      unique = true;
-      break;
-    }
+  {
+    std::string bytes = good;
+    const double nan = std::nan("");
+    std::memcpy(&bytes[good.find(std::string(reinterpret_cast<const char*>(&coordinate), 8))],
+                &nan, sizeof nan);
+    expect_refused(fuzz::RepairMap(bytes), "a NaN pose",
+                   "keyframe " + std::to_string(posed) + " has a non-finite pose");
   }
-  ASSERT_TRUE(unique);
-  expect_refused(with_nan(&x6, sizeof x6), "a NaN keypoint",
-                 "keyframe 6 has a non-finite keypoint");
+  {
+    // Keyframe 6 claims a keypoint more than its payload holds (checksums repaired).
+    std::string bytes = good;
+    const size_t count_at = layout.offset[2] + 6 * 64 + 44;
+    uint32_t n;
+    std::memcpy(&n, &bytes[count_at], 4);
+    ++n;
+    std::memcpy(&bytes[count_at], &n, 4);
+    // (The payload offsets then disagree from keyframe 7 on, which the error names.)
+    expect_refused(fuzz::RepairMap(bytes), "a keypoint count out of step",
+                   "keyframe 7 is malformed");
+  }
+  // A flipped byte in a keyframe's stored keypoints: the map loads (a load reads the index and
+  // the records, not every keypoint), and that keyframe alone refuses verification by name.
+  {
+    Localizer loaded(s.vocabulary, "test.gtvoc", Options());
+    loaded.Load(path);
+    const ProcessedImage img = loaded.Process(s.revisits[0]);
+    const auto before = loaded.Query(img, 3, true);
+    ASSERT_TRUE(before[0].verified);
+    const uint32_t victim = before[0].id;
+    std::string bytes = good;
+    uint64_t payload_offset;
+    std::memcpy(&payload_offset, &bytes[layout.offset[2] + victim * 64 + 48], 8);
+    bytes[layout.offset[4] + payload_offset + 3] ^= 0x10;
+    WriteFileAtomic(dir() / "payload.gtmap", bytes);
+    loaded.Load(dir() / "payload.gtmap");
+    const auto after = loaded.Query(img, 3, true);
+    ASSERT_EQ(after[0].id, victim);
+    EXPECT_FALSE(after[0].verified);
+    EXPECT_NE(after[0].relative.reason.find("keyframe " + std::to_string(victim)),
+              std::string::npos)
+        << after[0].relative.reason;
+    EXPECT_NE(after[0].relative.reason.find("checksum"), std::string::npos);
+    EXPECT_EQ(after[1].verified, before[1].verified);  // the others are unaffected
+    EXPECT_THROW(loaded.QueryKeyframe(victim, 3, false), std::runtime_error);
+  }
   // A map made with another vocabulary (the fuzzers' 64-word fixture) is refused by name.
   {
     LocalizerOptions o = Options();
@@ -425,6 +445,150 @@ TEST_F(LocalizerFiles, DamagedOrForeignMapsAreRefusedAndTheCurrentMapKept) {
   EXPECT_EQ(ReadFile(path), good);
   EXPECT_EQ(std::filesystem::last_write_time(path), mtime);
   EXPECT_TRUE(testing_util::Temporaries(dir()).empty());
+}
+
+// Answers of two maps to every revisit, bit for bit (candidates and fixes).
+void ExpectSameAnswers(const Localizer& a, const Localizer& b, const std::string& what) {
+  const Scene& s = TheScene();
+  for (size_t q = 0; q < s.revisits.size(); ++q) {
+    const ProcessedImage img = a.Process(s.revisits[q]);
+    const auto ca = a.Query(img, 5, true), cb = b.Query(img, 5, true);
+    ASSERT_EQ(ca.size(), cb.size()) << what;
+    for (size_t k = 0; k < ca.size(); ++k)
+      EXPECT_EQ(Describe(ca[k]), Describe(cb[k])) << what << ' ' << q << ' ' << k;
+    EXPECT_EQ(Describe(a.Localize(img)), Describe(b.Localize(img))) << what << ' ' << q;
+  }
+}
+
+// Mapping goes on after a load (new keyframes in a growable tail after the mapped ones), and
+// after a save (which swaps the heap copy for the file's); a second save and load give the
+// same answers again.
+TEST_F(LocalizerFiles, MappingContinuesOnALoadedMapAndAcrossSaves) {
+  const Scene& s = TheScene();
+  const size_t half = s.db_images.size() / 2;
+  Localizer online(s.vocabulary, "test.gtvoc", Options());
+  for (size_t i = 0; i < half; ++i) online.Add(online.Process(s.db_images[i]), 1, s.db_poses[i]);
+  const size_t heap = online.HeapBytes();
+  online.Save(dir() / "half.gtmap");
+  EXPECT_LT(online.HeapBytes(), heap) << "after a save the file's copy is used";
+  Localizer loaded(s.vocabulary, "test.gtvoc", Options());
+  loaded.Load(dir() / "half.gtmap");
+  // Mapped, not copied: the heap of an empty map plus a byte of flags per keyframe.
+  EXPECT_LE(loaded.HeapBytes(),
+            Localizer(s.vocabulary, "test.gtvoc", Options()).HeapBytes() + 2 * half);
+  for (size_t i = half; i < s.db_images.size(); ++i) {
+    const ProcessedImage img = online.Process(s.db_images[i]);
+    EXPECT_EQ(online.Add(img, 2, s.db_poses[i]), loaded.Add(img, 2, s.db_poses[i]));
+    if (i == half + 3) online.Save(dir() / "during.gtmap");  // a save in the middle
+  }
+  ExpectSameAnswers(online, loaded, "loaded + tail");
+  loaded.Save(dir() / "full.gtmap");
+  ExpectSameAnswers(online, loaded, "after its own save");
+  Localizer again(s.vocabulary, "test.gtvoc", Options());
+  again.Load(dir() / "full.gtmap");
+  ASSERT_EQ(again.size(), s.db_images.size());
+  ExpectSameAnswers(online, again, "saved and loaded again");
+  // Saved over the very file it is mapped from: the mapping keeps the old bytes valid.
+  again.Add(again.Process(s.revisits[0]), 3, std::nullopt);
+  again.Save(dir() / "full.gtmap");
+  Localizer third(s.vocabulary, "test.gtvoc", Options());
+  third.Load(dir() / "full.gtmap");
+  EXPECT_EQ(third.size(), s.db_images.size() + 1);
+  ExpectSameAnswers(again, third, "saved over its own file");
+}
+
+// A map of format version 1 is refused by Load with the command that converts it; converted
+// (ImportVersion1 + Save) it answers as a map built here from the same images.
+TEST_F(LocalizerFiles, VersionOneMapsAreRefusedWithTheirConversionAndConvertExactly) {
+  const Scene& s = TheScene();
+  Localizer built(s.vocabulary, "test.gtvoc", Options());
+  std::vector<testing_util::Version1Keyframe> v1;
+  for (size_t i = 0; i < s.db_images.size(); ++i) {
+    ProcessedImage img = built.Process(s.db_images[i]);
+    built.Add(img, 1000 + static_cast<int64_t>(i), s.db_poses[i]);
+    v1.push_back({img.features, img.width, img.height, 1000 + static_cast<int64_t>(i),
+                  s.db_poses[i]});
+  }
+  const auto old_path = dir() / "old.gtmap";
+  testing_util::WriteVersion1Map(old_path, *s.vocabulary, "test.gtvoc", Options(), v1);
+  const MapFileInfo info = Localizer::ReadMapInfo(old_path);
+  EXPECT_EQ(info.version, 1u);
+  EXPECT_EQ(info.keyframes, s.db_images.size());
+  EXPECT_EQ(Localizer::VocabularyPathOf(old_path), "test.gtvoc");
+  Localizer target(s.vocabulary, "test.gtvoc", Options());
+  try {
+    target.Load(old_path);
+    ADD_FAILURE() << "a version-1 map loaded";
+  } catch (const std::runtime_error& e) {
+    EXPECT_NE(std::string(e.what()).find("gtbow convert-map --in " + old_path.string()),
+              std::string::npos)
+        << e.what();
+  }
+  target.ImportVersion1(old_path);
+  ExpectSameAnswers(built, target, "imported");
+  target.Save(dir() / "new.gtmap");
+  Localizer converted(s.vocabulary, "test.gtvoc", Options());
+  converted.Load(dir() / "new.gtmap");
+  ExpectSameAnswers(built, converted, "converted");
+  EXPECT_EQ(Localizer::ReadMapInfo(dir() / "new.gtmap").version, 2u);
+}
+
+// Without descriptors a map is smaller by their size, verification uses word pairs, re-query
+// by keyframe id says why it cannot, and the two kinds of map do not load into each other.
+TEST_F(LocalizerFiles, MapsWithoutDescriptorsVerifyFromWordsAndSaySo) {
+  const Scene& s = TheScene();
+  LocalizerOptions o = Options();
+  o.keep_descriptors = false;
+  Localizer lean(s.vocabulary, "test.gtvoc", o);
+  const auto full = Mapped(true);
+  for (size_t i = 0; i < s.db_images.size(); ++i)
+    lean.Add(lean.Process(s.db_images[i]), 1000 + static_cast<int64_t>(i), s.db_poses[i]);
+  EXPECT_EQ(lean.effective_matches(), MatchSource::kWords);
+  lean.Save(dir() / "lean.gtmap");
+  full->Save(dir() / "full.gtmap");
+  const MapFileInfo li = Localizer::ReadMapInfo(dir() / "lean.gtmap");
+  const MapFileInfo fi = Localizer::ReadMapInfo(dir() / "full.gtmap");
+  EXPECT_FALSE(li.descriptors);
+  EXPECT_TRUE(fi.descriptors);
+  size_t keypoints = 0;
+  for (const Keyframe& k : full->Keyframes()) keypoints += full->KeyframeInfo(k.id)->keypoints.size();
+  EXPECT_EQ(fi.file_bytes - li.file_bytes, keypoints * 32);  // ORB: 32 bytes a keypoint
+  int fixes = 0;
+  for (const cv::Mat& r : s.revisits) fixes += lean.Localize(lean.Process(r)).success ? 1 : 0;
+  EXPECT_GT(fixes, static_cast<int>(s.revisits.size()) / 2);
+  try {
+    lean.QueryKeyframe(3, 3, false);
+    ADD_FAILURE() << "re-query without descriptors";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("keep_descriptors"), std::string::npos) << e.what();
+  }
+  for (const auto& [file, opts] : {std::pair{"lean.gtmap", Options()}, std::pair{"full.gtmap", o}}) {
+    Localizer other(s.vocabulary, "test.gtvoc", opts);
+    try {
+      other.Load(dir() / file);
+      ADD_FAILURE() << file << " loaded into the other kind";
+    } catch (const std::runtime_error& e) {
+      EXPECT_NE(std::string(e.what()).find("keep_descriptors"), std::string::npos) << e.what();
+    }
+  }
+}
+
+// Keypoints as a map keeps them: within a hundredth of a pixel and a tenth of a degree here.
+TEST(StoredKeypoints, QuantisationIsFineEnoughForVerification) {
+  std::vector<Keypoint> k(3);
+  k[0] = {639.99f, 0.0f, 6.2831f, 31.0f, 0.1f, 0};
+  k[1] = {320.123f, 240.456f, 1.234f, 44.64f, 0.2f, 2};
+  k[2] = {1.0f, 479.5f, 0.0f, 111.1f, 0.3f, -1};
+  const auto q = StoredKeypoints(k, 640, 480);
+  ASSERT_EQ(q.size(), k.size());
+  for (size_t i = 0; i < k.size(); ++i) {
+    EXPECT_NEAR(q[i].x, k[i].x, 0.005) << i;
+    EXPECT_NEAR(q[i].y, k[i].y, 0.005) << i;
+    EXPECT_NEAR(std::remainder(q[i].angle - k[i].angle, 2 * M_PI), 0.0, M_PI / 4096) << i;
+    EXPECT_NEAR(q[i].size, k[i].size, 1.0 / 32) << i;
+    EXPECT_EQ(q[i].octave, k[i].octave) << i;
+  }
+  EXPECT_EQ(StoredKeypoints(q, 640, 480)[1].x, q[1].x);  // stable: stored twice, same value
 }
 
 // Every key a preset records guards the map: a map saved under one preset is refused under a

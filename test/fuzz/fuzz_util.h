@@ -12,6 +12,7 @@
 
 #include <unistd.h>
 
+#include <algorithm>
 #include <cstdint>
 #include <cstdio>
 #include <cstdlib>
@@ -103,6 +104,81 @@ inline std::string RepairDatabase(std::string f) {
     Write64(&f, at + entries + c * 8, Checksum64(f.data() + at + off, len));
   }
   Write64(&f, at + entries + chunks * 8, Checksum64(f.data() + at + entries, chunks * 8));
+  return f;
+}
+
+// The sections of a map file of format version 2 (localizer_map.cpp), read from its header
+// without checks beyond bounds; `ok` is false where the header cannot be read.
+struct MapLayout {
+  bool ok = false;
+  uint64_t keyframes = 0, stride = 0;
+  uint64_t offset[5] = {}, size[5] = {};  // index header, entries, records, checksums, payload
+};
+inline MapLayout ParseMapLayout(const std::string& f) {
+  MapLayout l;
+  constexpr size_t kFixed = 64;
+  if (f.size() < kFixed) return l;
+  const uint64_t hs = Read64(f, 16);
+  if (hs > f.size() - kFixed) return l;
+  size_t at = kFixed;
+  const size_t end = kFixed + hs;
+  auto need = [&](uint64_t n) { return n <= end - at; };
+  auto skip_string = [&]() {
+    if (!need(8)) return false;
+    const uint64_t n = Read64(f, at);
+    at += 8;
+    if (!need(n)) return false;
+    at += n;
+    return true;
+  };
+  if (!skip_string() || !need(8)) return l;
+  at += 8;  // fingerprint
+  if (!skip_string() || !need(8 + 8 + 1 + 4 + 80)) return l;
+  at += 8;  // metres per pixel
+  l.keyframes = Read64(f, at);
+  at += 8 + 1;
+  uint32_t stride;
+  std::memcpy(&stride, &f[at], 4);
+  l.stride = stride;
+  at += 4;
+  for (int s = 0; s < 5; ++s) {
+    l.offset[s] = Read64(f, at);
+    l.size[s] = Read64(f, at + 8);
+    at += 16;
+    if (l.offset[s] > f.size() || l.size[s] > f.size() - l.offset[s]) return l;
+  }
+  l.ok = true;
+  return l;
+}
+
+// A map file of format version 2 with every checksum recomputed where the header allows:
+// the header's, each keyframe payload's (in its record), each 64 MB chunk's and the table's.
+inline std::string RepairMap(std::string f) {
+  constexpr size_t kFixed = 64;
+  constexpr uint64_t kChunk = uint64_t{64} << 20;
+  if (f.size() < kFixed) return f;
+  const uint64_t hs = Read64(f, 16);
+  if (hs > f.size() - kFixed) return f;
+  Write64(&f, 24, Checksum64(f.data() + kFixed, hs));
+  Write64(&f, 32, f.size());
+  const MapLayout l = ParseMapLayout(f);
+  if (!l.ok || l.size[2] / 64 != l.keyframes || l.size[2] % 64 != 0) return f;
+  for (uint64_t k = 0; k < l.keyframes; ++k) {
+    const size_t rec = l.offset[2] + k * 64;
+    uint32_t n;
+    std::memcpy(&n, &f[rec + 44], 4);
+    const uint64_t off = Read64(f, rec + 48), len = uint64_t{n} * l.stride;
+    if (off > l.size[4] || len > l.size[4] - off) continue;
+    Write64(&f, rec + 56, Checksum64(f.data() + l.offset[4] + off, len));
+  }
+  if (l.offset[3] < l.offset[0]) return f;
+  const uint64_t region = l.offset[3] - l.offset[0], chunks = (region + kChunk - 1) / kChunk;
+  if (l.size[3] != (chunks + 1) * 8) return f;
+  for (uint64_t c = 0; c < chunks; ++c) {
+    const uint64_t len = std::min(kChunk, region - c * kChunk);
+    Write64(&f, l.offset[3] + c * 8, Checksum64(f.data() + l.offset[0] + c * kChunk, len));
+  }
+  Write64(&f, l.offset[3] + chunks * 8, Checksum64(f.data() + l.offset[3], chunks * 8));
   return f;
 }
 

@@ -1,5 +1,5 @@
 // Fuzzes the map file reader (Localizer::Load) with the fixture vocabulary and options
-// (fuzz_fixture.h). Mode byte bit 0 repairs the file's frame (size and checksum). An accepted
+// (fuzz_fixture.h). Mode byte bit 0 repairs the file's checksums (fuzz_util.h's RepairMap). An accepted
 // map must answer a query for each of its keyframes (candidates in range, verification run on
 // the stored keypoints) and save again.
 #include <cstdint>
@@ -12,7 +12,7 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   static Localizer localizer(fuzz::FixtureVocabulary(), fuzz::FixtureVocabularyPath(),
                              fuzz::FixtureOptions());
   const auto& path = fuzz::ScratchFile("map");
-  fuzz::WriteScratch(path, fuzz::FileFromInput(data, size, fuzz::RepairFramed));
+  fuzz::WriteScratch(path, fuzz::FileFromInput(data, size, fuzz::RepairMap));
   try {
     localizer.Load(path);
   } catch (const std::runtime_error&) {

@@ -94,6 +94,10 @@ class BinaryReader {
     return std::string(v.begin(), v.end());
   }
   size_t remaining() const { return size_ - pos_; }
+  void Skip(uint64_t n) {
+    Need(n);
+    pos_ += n;
+  }
   [[noreturn]] void Fail(const std::string& what) const {
     throw std::runtime_error(source_ + ": " + what + " (at byte " + std::to_string(pos_) + ")");
   }

@@ -24,6 +24,8 @@
 //
 // Thread safety: any number of concurrent Query() calls with one writer. Add(), Remove() and
 // Load() take the index's mutex exclusively; Query(), size() and Save() take it shared.
+// Freeze() and Rebase() take it exclusively for O(rows) pointer moves; WriteFrozen() takes it
+// not at all.
 #pragma once
 
 #include <cstdint>
@@ -86,6 +88,7 @@ class BowDatabase {
   uint32_t num_rows() const { return num_rows_; }
   const BowOptions& options() const { return options_; }
   size_t MemoryBytes() const;  // rows, entries (mapped, owned, spare capacity) and image flags
+  size_t MappedBytes() const;  // the part of MemoryBytes in a memory-mapped file
   size_t num_entries() const;  // keypoint entries in all rows
   // Threads one query may use (blocks of image ids are shared among them); 1 by default.
   void set_query_threads(int threads);
@@ -108,9 +111,35 @@ class BowDatabase {
   void SerializeTo(const std::function<void(uint64_t size)>& begin,
                    const std::function<void(const void* data, size_t size)>& write) const;
 
+  // Writing the index into a map file while it keeps serving (Localizer::Save):
+  // - Freeze() seals what the index holds (each row's tail joins its sealed entries, in
+  //   O(rows) under the lock); DescribeFrozen() then gives Serialize's header for those
+  //   entries and their size, without the lock;
+  // - WriteFrozen() streams them without the lock: Add and Query go on, touching only tails;
+  // - Rebase() then points every row's frozen entries at the written copy (`entries`, in a
+  //   memory-mapped file kept alive by `keep_alive`) and frees their heap copies.
+  // One saver at a time, in this order, and no Load() meanwhile. Without Rebase (a failed
+  // save) the sealed entries stay in the heap and the next Freeze() includes them.
+  struct Frozen {
+    uint32_t images = 0;           // ids handed out at the freeze
+    std::vector<uint8_t> removed;  // their flags
+    std::string header;            // DescribeFrozen's
+    uint64_t entries_bytes = 0;
+  };
+  Frozen Freeze();
+  void DescribeFrozen(Frozen* frozen) const;
+  void WriteFrozen(const std::function<void(const void* data, size_t size)>& write) const;
+  void Rebase(const Frozen& frozen, const char* entries, std::shared_ptr<const void> keep_alive);
+  // Attaches an index embedded in a memory-mapped file (the map file): Serialize's header and
+  // entries at addresses that `keep_alive` keeps valid; nothing is copied. Load's checks, but
+  // not its checksums (the embedding file has its own); errors name `source`.
+  void AttachMapped(const char* header, size_t header_size, const char* entries,
+                    size_t entries_size, std::shared_ptr<const void> keep_alive,
+                    const std::string& source);
+
  private:
   void Attach(const char* header, size_t header_size, const char* entries, size_t entries_size,
-              std::shared_ptr<const void> keep_alive, const std::string& source);
+              std::shared_ptr<const void> keep_alive, const std::string& source, bool mapped);
 
   uint32_t num_rows_;
   BowOptions options_;

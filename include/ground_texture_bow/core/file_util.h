@@ -20,6 +20,8 @@ void WriteFileAtomic(const std::filesystem::path& path, const std::string& conte
 void WriteFileAtomic(const std::filesystem::path& path,
                      std::initializer_list<std::string_view> pieces);
 
+class MappedFile;
+
 // A file written in pieces of any number and size, then published atomically: the pieces go
 // to a temporary file next to `path`; Commit() flushes it to disk and renames it over `path`.
 // Destroyed without Commit() (an error, an exception), the temporary is removed and `path` is
@@ -34,8 +36,11 @@ class AtomicFileWriter {
   void Write(std::string_view piece) { Write(piece.data(), piece.size()); }
   size_t written() const { return written_; }
   void Commit();
+  // Commit, and a read-only mapping of the bytes written (taken before the rename).
+  std::shared_ptr<const MappedFile> CommitAndMap();
 
  private:
+  std::shared_ptr<const MappedFile> Publish(bool map);
   [[noreturn]] void Fail(const std::string& why);
   std::filesystem::path path_;
   std::filesystem::path tmp_;
@@ -50,6 +55,9 @@ class MappedFile {
  public:
   // Throws std::runtime_error naming the path when it cannot be opened or mapped.
   static std::shared_ptr<const MappedFile> Open(const std::filesystem::path& path);
+  // The file open as `fd` (not closed here); `path` names it in errors.
+  static std::shared_ptr<const MappedFile> FromDescriptor(int fd,
+                                                          const std::filesystem::path& path);
   ~MappedFile();
   MappedFile(const MappedFile&) = delete;
   MappedFile& operator=(const MappedFile&) = delete;

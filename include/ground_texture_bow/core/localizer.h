@@ -48,6 +48,11 @@ struct LocalizerOptions {
   void Check() const;
 };
 
+namespace detail {
+class KeyframeStore;
+struct KeyframeView;
+}  // namespace detail
+
 // One database image. `map_from_camera` is the pose of the image (centre and u axis, as
 // geometry.h's Pose2D) in the map, metres and radians; valid only with has_pose.
 struct Keyframe {
@@ -57,8 +62,26 @@ struct Keyframe {
   Pose2D map_from_camera;
   int width = 0;  // image size, pixels
   int height = 0;
-  std::vector<Keypoint> keypoints;
-  cv::Mat descriptors;  // kept so that a keyframe can be queried again by id
+  std::vector<Keypoint> keypoints;  // as the map stores them (StoredKeypoints)
+};
+
+// Keypoints as a map stores them (8 bytes each): x and y in steps of max(width, height) / 65535
+// pixels, orientation in steps of 2 pi / 4096, size in 1/16 pixel, pyramid level -1..14, no
+// detector score. Verification reads a map's keypoints through this; gtbow eval applies it to
+// its map images too, so that what it measures is what the node does.
+std::vector<Keypoint> StoredKeypoints(const std::vector<Keypoint>& keypoints, int width,
+                                      int height);
+
+// What a map file's header says (Localizer::ReadMapInfo), for either format version.
+struct MapFileInfo {
+  uint32_t version = 0;  // 1: before issue 17 (loaded whole, to convert); 2: memory-mapped
+  std::string vocabulary_path;
+  uint64_t vocabulary_fingerprint = 0;
+  std::string retrieval_config;  // FormatRetrievalConfig's text of the map's preset
+  double meters_per_pixel = 0;
+  uint64_t keyframes = 0;
+  bool descriptors = false;  // the map keeps keyframe descriptors
+  uint64_t file_bytes = 0;
 };
 
 // An image ready to insert or query: its features and BoW vector.
@@ -99,6 +122,7 @@ class Localizer {
   // contain it). The vocabulary's search settings are set from options.retrieval.
   Localizer(std::shared_ptr<Vocabulary> vocabulary, std::string vocabulary_path,
             const LocalizerOptions& options);
+  ~Localizer();
   Localizer(const Localizer&) = delete;
   Localizer& operator=(const Localizer&) = delete;
 
@@ -133,22 +157,42 @@ class Localizer {
 
   // Writes the map (vocabulary path and fingerprint, options, database, keyframes) atomically:
   // a failure leaves any existing file untouched. Throws std::runtime_error naming the path.
+  // Insertion and queries go on while the file is written: the save holds the lock only to
+  // seal what the map holds (O(index rows) pointer moves) and, once written, to use the file's
+  // memory-mapped copy instead of the heap's. Saves are serialised.
+  // Format (version 2, docs/ARCHITECTURE.md): the index as the core's memory-mappable layout
+  // and 64-byte keyframe records, with a checksum per 64 MB verified at Load on all cores; then
+  // each keyframe's keypoints (StoredKeypoints, 8 bytes each) and, with keep_descriptors, its
+  // descriptors, with a checksum per keyframe checked when the keyframe is read.
   void Save(const std::filesystem::path& path) const;
-  // Replaces the map with a saved one. Throws std::runtime_error naming the file when it is
-  // damaged, of another version, or made with another vocabulary or other BoW options; the
-  // current map is kept then.
+  // Replaces the map with a saved one, memory-mapped (nothing is copied into the heap; new
+  // keyframes go to a growable tail). Throws std::runtime_error naming the file when it is
+  // damaged, of another version (a version-1 map: the message says how to convert it), or made
+  // with another vocabulary, other BoW options or another keep_descriptors; the current map is
+  // kept then.
   void Load(const std::filesystem::path& path);
+  // Replaces the map with a version-1 map file (before issue 17), read whole into the heap; for
+  // gtbow convert-map (load it, then Save). Load's checks otherwise.
+  void ImportVersion1(const std::filesystem::path& path);
+  // The header of a map file of either version. Throws std::runtime_error naming the file.
+  static MapFileInfo ReadMapInfo(const std::filesystem::path& path);
   // The vocabulary path recorded in a map file (to load the right vocabulary before Load).
   static std::string VocabularyPathOf(const std::filesystem::path& path);
 
   void Reset();  // forgets every keyframe
 
   size_t size() const;                                      // keyframes
-  std::optional<Keyframe> KeyframeInfo(uint32_t id) const;  // a copy, without descriptors
+  std::optional<Keyframe> KeyframeInfo(uint32_t id) const;  // a copy
   std::vector<Keyframe> Keyframes() const;                  // every keyframe, without features
   const Vocabulary& vocabulary() const { return *vocabulary_; }
   const std::string& vocabulary_path() const { return vocabulary_path_; }
   const LocalizerOptions& options() const { return options_; }
+  // Bytes of the map in the heap (index, keyframe records and payloads); a loaded map's
+  // memory-mapped part is not counted.
+  size_t HeapBytes() const;
+  // How verification matches here: the preset's choice, except word pairs where it asks for
+  // descriptors and the map keeps none.
+  MatchSource effective_matches() const { return verification_.matches; }
 
  private:
   ImageGeometry GeometryOf(int width, int height) const;
@@ -157,14 +201,28 @@ class Localizer {
   MapAccess RelativeAccess() const;
   std::vector<Candidate> QueryLocked(const BowVector& bow, int width, int height, size_t k,
                                      bool verify, uint32_t exclude_from, uint32_t exclude_to) const;
+  // A keyframe's view, or why it cannot be verified (a payload that fails its checksum); under
+  // mutex_.
+  detail::KeyframeView View(uint32_t id) const;
+  std::string Damaged(uint32_t id) const;
+  std::unique_ptr<BowDatabase> NewDatabase() const;
+  std::unique_ptr<detail::KeyframeStore> NewStore() const;
+  size_t PayloadStride() const;
+  // Parses and checks a version-2 file's header against this localizer; returns the mapping.
+  void CheckHeader(const MapFileInfo& info, const std::string& source) const;
 
   std::shared_ptr<Vocabulary> vocabulary_;
   std::string vocabulary_path_;
   LocalizerOptions options_;
+  LocalizationOptions verification_;  // options_.retrieval.verification, effective_matches()
+  int descriptor_cols_ = 0;           // the extractor's descriptors: 32 x CV_8U or 128 x CV_32F
+  int descriptor_type_ = 0;
   std::unique_ptr<BowEncoder> encoder_;
-  mutable std::shared_mutex mutex_;        // guards database_ and keyframes_
-  std::unique_ptr<BowDatabase> database_;  // guarded by mutex_
-  std::vector<Keyframe> keyframes_;        // by id; guarded by mutex_
+  mutable std::mutex save_mutex_;            // one Save at a time
+  mutable std::shared_mutex mutex_;          // guards database_, keyframes_ and generation_
+  std::shared_ptr<BowDatabase> database_;    // guarded by mutex_ (a save keeps its own reference)
+  std::unique_ptr<detail::KeyframeStore> keyframes_;  // by id; guarded by mutex_
+  uint64_t generation_ = 0;  // bumped by Load, ImportVersion1 and Reset; guarded by mutex_
 };
 
 }  // namespace gtbow

@@ -145,7 +145,7 @@ struct Localization {
 
 // Where the localizer finds a database image's keypoints and pose.
 struct MapAccess {
-  std::function<const std::vector<Keypoint>&(uint32_t image)> keypoints;
+  std::function<std::vector<Keypoint>(uint32_t image)> keypoints;
   // Its descriptors (row i: keypoint i); needed only for MatchSource::kDescriptors.
   std::function<cv::Mat(uint32_t image)> descriptors;
   std::function<Pose2D(uint32_t image)> pose;

@@ -1,0 +1,500 @@
+// The Localizer's map file (Save, Load, ImportVersion1, ReadMapInfo).
+//
+// Version 2, little-endian, every section at a 64-byte aligned offset:
+//   fixed head (64 bytes): magic "GTBWMAP\0", version, 0, header size, header checksum,
+//                          file size
+//   header:       vocabulary path and fingerprint, the preset's text, metres per pixel,
+//                 keyframe count, whether descriptors are kept, payload bytes per keypoint, and
+//                 the sections' offsets and sizes
+//   index header  BowDatabase's header (rows, counts, options, removed flags)   \  verified at
+//   index entries its entries, memory-mapped in place                           |  Load, 64 MB
+//   records       a 64-byte record per keyframe (detail::KeyframeRecord)        /  per checksum
+//   checksum table one checksum per 64 MB of the three sections above, and the table's own
+//   payloads      per keyframe: packed keypoints, then descriptors when kept; each has its
+//                 checksum in its record, checked when the keyframe is read (a load reads only
+//                 the index and records, not gigabytes of keypoints it may never need)
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <mutex>
+#include <stdexcept>
+
+#include "ground_texture_bow/core/binary_io.h"
+#include "ground_texture_bow/core/file_util.h"
+#include "ground_texture_bow/core/localizer.h"
+#include "ground_texture_bow/core/parallel.h"
+#include "keyframe_store.h"
+
+namespace gtbow {
+
+namespace {
+
+constexpr char kMapMagic[8] = {'G', 'T', 'B', 'W', 'M', 'A', 'P', '\0'};
+constexpr uint32_t kVersion1 = 1;  // one framed blob, read whole (before issue 17)
+constexpr uint32_t kMapVersion = 2;
+constexpr size_t kFixedHead = 64;
+constexpr size_t kAlign = 64;
+constexpr uint64_t kChunk = uint64_t{64} << 20;
+constexpr uint64_t kMaxKeypoints = 1u << 16;
+constexpr uint64_t kMaxHeader = 1u << 24;
+
+enum Section { kIndexHeader, kIndexEntries, kRecords, kChecksums, kPayload, kSections };
+
+struct Layout {
+  uint64_t offset[kSections] = {};
+  uint64_t size[kSections] = {};
+  uint64_t file_size = 0;
+};
+
+uint64_t AlignUp(uint64_t v) { return (v + kAlign - 1) / kAlign * kAlign; }
+
+std::string ConvertHint(const std::string& source) {
+  return source + ": map format version 1 (written before memory-mapped maps) is not loaded " +
+         "directly any more; convert it once: gtbow convert-map --in " + source +
+         " --out NEW_FILE";
+}
+
+// The sections' bytes [offset of kIndexHeader, offset of kChecksums) go through this: it writes
+// them and keeps a checksum per 64 MB of them.
+class ChunkedRegion {
+ public:
+  ChunkedRegion(AtomicFileWriter* file, uint64_t size)
+      : file_(file), size_(size), chunk_(std::min(kChunk, size)) {}
+  void Write(const void* data, size_t n) {
+    const char* p = static_cast<const char*>(data);
+    while (n > 0) {
+      const size_t take = std::min<uint64_t>(n, chunk_size() - in_chunk_);
+      chunk_.Add(p, take);
+      file_->Write(p, take);
+      p += take;
+      n -= take;
+      in_chunk_ += take;
+      done_ += take;
+      if (in_chunk_ == chunk_size()) {
+        sums_.push_back(chunk_.Finish());
+        in_chunk_ = 0;
+        chunk_ = Checksum64Builder(std::min(kChunk, size_ - done_));
+      }
+    }
+  }
+  void Pad(uint64_t to) {
+    static const char zeros[kAlign] = {};
+    while (done_ < to) Write(zeros, std::min<uint64_t>(kAlign, to - done_));
+  }
+  uint64_t done() const { return done_; }
+  const std::vector<uint64_t>& sums() const { return sums_; }
+
+ private:
+  uint64_t chunk_size() const { return std::min(kChunk, size_ - (done_ - in_chunk_)); }
+  AtomicFileWriter* file_;
+  uint64_t size_;
+  Checksum64Builder chunk_;
+  uint64_t in_chunk_ = 0, done_ = 0;
+  std::vector<uint64_t> sums_;
+};
+
+void PadFile(AtomicFileWriter* file, uint64_t to) {
+  static const char zeros[kAlign] = {};
+  while (file->written() < to) file->Write(zeros, std::min<uint64_t>(kAlign, to - file->written()));
+}
+
+uint64_t Get64(const char* p) {
+  uint64_t v;
+  std::memcpy(&v, p, 8);
+  return v;
+}
+
+// The fixed head and header of a version-2 file; `size` is the file's.
+MapFileInfo ParseHeader(const char* d, size_t size, const std::string& source, Layout* layout,
+                        uint32_t* stride) {
+  auto fail = [&source](const std::string& what) { throw std::runtime_error(source + ": " + what); };
+  if (size < kFixedHead) fail("not a map file (too short: " + std::to_string(size) + " bytes)");
+  if (std::memcmp(d, kMapMagic, 8) != 0) fail("not a map file (wrong magic number)");
+  uint32_t version;
+  std::memcpy(&version, d + 8, 4);
+  if (version == kVersion1) throw std::runtime_error(ConvertHint(source));
+  if (version != kMapVersion) {
+    fail("map format version " + std::to_string(version) +
+         " is not supported (this build reads version " + std::to_string(kMapVersion) + ")");
+  }
+  const uint64_t hs = Get64(d + 16);
+  if (hs > kMaxHeader || hs > size - kFixedHead) fail("map file is truncated (header)");
+  if (Checksum64(d + kFixedHead, hs) != Get64(d + 24)) {
+    fail("map file is corrupt (header checksum mismatch)");
+  }
+  const uint64_t file_size = Get64(d + 32);
+  if (file_size != size) {
+    fail("map file is truncated or has trailing bytes (" + std::to_string(size) + " bytes, the " +
+         "header says " + std::to_string(file_size) + ")");
+  }
+  BinaryReader r(d + kFixedHead, hs, source);
+  MapFileInfo info;
+  info.version = version;
+  info.file_bytes = size;
+  info.vocabulary_path = r.GetString(1u << 16);
+  info.vocabulary_fingerprint = r.Get<uint64_t>();
+  info.retrieval_config = r.GetString(1u << 20);
+  info.meters_per_pixel = r.Get<double>();
+  info.keyframes = r.Get<uint64_t>();
+  info.descriptors = r.Get<uint8_t>() != 0;
+  *stride = r.Get<uint32_t>();
+  for (int s = 0; s < kSections; ++s) {
+    layout->offset[s] = r.Get<uint64_t>();
+    layout->size[s] = r.Get<uint64_t>();
+  }
+  if (r.remaining() != 0) r.Fail("trailing bytes after the header");
+  // Sections in order, aligned, inside the file; the payloads end it.
+  uint64_t at = AlignUp(kFixedHead + hs);
+  for (int s = 0; s < kSections; ++s) {
+    if (layout->offset[s] != AlignUp(at) || layout->size[s] > size ||
+        layout->offset[s] > size - layout->size[s]) {
+      fail("map file's section table is inconsistent (section " + std::to_string(s) + ")");
+    }
+    at = layout->offset[s] + layout->size[s];
+  }
+  if (at != size) fail("map file has trailing bytes after the keyframes");
+  const uint64_t region = layout->offset[kChecksums] - layout->offset[kIndexHeader];
+  if (layout->size[kChecksums] != ((region + kChunk - 1) / kChunk + 1) * 8) {
+    fail("map file's checksum table has the wrong size");
+  }
+  if (info.keyframes > (uint64_t{1} << 24) ||
+      layout->size[kRecords] != info.keyframes * sizeof(detail::KeyframeRecord)) {
+    fail("map file's keyframe records do not match its keyframe count");
+  }
+  if (*stride < sizeof(detail::PackedKeypoint)) fail("map file's keyframe payload is malformed");
+  layout->file_size = size;
+  return info;
+}
+
+}  // namespace
+
+void Localizer::CheckHeader(const MapFileInfo& info, const std::string& source) const {
+  auto fail = [&source](const std::string& what) { throw std::runtime_error(source + ": " + what); };
+  if (info.vocabulary_fingerprint != vocabulary_->fingerprint()) {
+    fail("the map was built with another vocabulary than " + vocabulary_path_ + " (the map names " +
+         info.vocabulary_path + ")");
+  }
+  if (info.retrieval_config != FormatRetrievalConfig(options_.retrieval)) {
+    // Only the BoW options shape the stored index (the database checks them); feature
+    // options change what new images look like. Both must match for answers to be consistent.
+    // A map written before a key existed has that key's default.
+    std::string diff;
+    try {
+      diff = RetrievalConfigDifference(
+          ParseRetrievalConfig(info.retrieval_config, "the map's options"), "the map",
+          options_.retrieval, "this node");
+    } catch (const std::exception& e) {
+      fail(std::string("the map's retrieval options cannot be read: ") + e.what());
+    }
+    if (!diff.empty()) {
+      fail("the map was built with other retrieval options (another preset or extractor): " +
+           diff);
+    }
+  }
+  if (info.meters_per_pixel != options_.meters_per_pixel) {
+    fail("the map was built with meters_per_pixel " + std::to_string(info.meters_per_pixel) +
+         ", this node uses " + std::to_string(options_.meters_per_pixel));
+  }
+  if (info.version >= kMapVersion && info.descriptors != options_.keep_descriptors) {
+    fail(std::string("the map ") + (info.descriptors ? "keeps" : "keeps no") +
+         " keyframe descriptors, this node's keep_descriptors is " +
+         (options_.keep_descriptors ? "true" : "false"));
+  }
+}
+
+void Localizer::Save(const std::filesystem::path& path) const {
+  std::lock_guard<std::mutex> one(save_mutex_);
+  std::shared_ptr<BowDatabase> db;
+  BowDatabase::Frozen frozen;
+  std::vector<std::shared_ptr<const detail::KeyframeSegment>> segments;
+  uint64_t generation = 0;
+  {
+    // The only wait a save imposes: sealing the index's tails and the keyframes' tail.
+    std::unique_lock<std::shared_mutex> lock(mutex_);
+    db = database_;
+    frozen = db->Freeze();
+    segments = keyframes_->Freeze();
+    generation = generation_;
+  }
+  db->DescribeFrozen(&frozen);
+  const uint64_t n = frozen.images;
+  const size_t stride = PayloadStride();
+  uint64_t payload_bytes = 0, count = 0;
+  for (const auto& s : segments) {
+    for (size_t i = 0; i < s->size(); ++i) {
+      payload_bytes += static_cast<uint64_t>(s->Get(i).record->num_keypoints) * stride;
+    }
+    count += s->size();
+  }
+  if (count != n) throw std::logic_error("Localizer::Save: keyframes out of step with the index");
+
+  BinaryWriter h;
+  h.PutString(vocabulary_path_);
+  h.Put<uint64_t>(vocabulary_->fingerprint());
+  h.PutString(FormatRetrievalConfig(options_.retrieval));
+  h.Put<double>(options_.meters_per_pixel);
+  h.Put<uint64_t>(n);
+  h.Put<uint8_t>(options_.keep_descriptors ? 1 : 0);
+  h.Put<uint32_t>(static_cast<uint32_t>(stride));
+  const uint64_t header_size = h.buffer().size() + kSections * 16;
+  Layout l;
+  l.size[kIndexHeader] = frozen.header.size();
+  l.size[kIndexEntries] = frozen.entries_bytes;
+  l.size[kRecords] = n * sizeof(detail::KeyframeRecord);
+  l.size[kPayload] = payload_bytes;
+  uint64_t at = AlignUp(kFixedHead + header_size);
+  for (int s = 0; s < kSections; ++s) {
+    l.offset[s] = AlignUp(at);
+    if (s == kChecksums) {
+      const uint64_t region = l.offset[kChecksums] - l.offset[kIndexHeader];
+      l.size[kChecksums] = ((region + kChunk - 1) / kChunk + 1) * 8;
+    }
+    at = l.offset[s] + l.size[s];
+  }
+  l.file_size = at;
+  for (int s = 0; s < kSections; ++s) {
+    h.Put<uint64_t>(l.offset[s]);
+    h.Put<uint64_t>(l.size[s]);
+  }
+  char head[kFixedHead] = {};
+  std::memcpy(head, kMapMagic, 8);
+  std::memcpy(head + 8, &kMapVersion, 4);
+  const uint64_t fixed[3] = {h.buffer().size(), Checksum64(h.buffer().data(), h.buffer().size()),
+                             l.file_size};
+  std::memcpy(head + 16, fixed, sizeof(fixed));
+
+  AtomicFileWriter file(path);
+  file.Write(head, kFixedHead);
+  file.Write(h.buffer());
+  PadFile(&file, l.offset[kIndexHeader]);
+  const uint64_t base = l.offset[kIndexHeader];
+  ChunkedRegion region(&file, l.offset[kChecksums] - base);
+  region.Write(frozen.header.data(), frozen.header.size());
+  region.Pad(l.offset[kIndexEntries] - base);
+  db->WriteFrozen([&](const void* data, size_t size) { region.Write(data, size); });
+  region.Pad(l.offset[kRecords] - base);
+  {
+    std::vector<detail::KeyframeRecord> batch;
+    batch.reserve(16384);
+    uint64_t offset = 0;
+    for (const auto& s : segments) {
+      for (size_t i = 0; i < s->size(); ++i) {
+        detail::KeyframeRecord r = *s->Get(i).record;
+        r.payload_offset = offset;
+        offset += static_cast<uint64_t>(r.num_keypoints) * stride;
+        batch.push_back(r);
+        if (batch.size() == batch.capacity()) {
+          region.Write(batch.data(), batch.size() * sizeof(batch[0]));
+          batch.clear();
+        }
+      }
+    }
+    region.Write(batch.data(), batch.size() * sizeof(batch[0]));
+  }
+  region.Pad(l.offset[kChecksums] - base);
+  std::vector<uint64_t> sums = region.sums();
+  sums.push_back(Checksum64(sums.data(), sums.size() * 8));
+  file.Write(sums.data(), sums.size() * 8);
+  PadFile(&file, l.offset[kPayload]);
+  for (const auto& s : segments) {
+    for (size_t i = 0; i < s->size(); ++i) {
+      const detail::KeyframeView v = s->Get(i);
+      file.Write(v.payload, static_cast<size_t>(v.record->num_keypoints) * stride);
+    }
+  }
+  if (file.written() != l.file_size) throw std::logic_error("Localizer::Save: layout mismatch");
+  const std::shared_ptr<const MappedFile> mapped = file.CommitAndMap();
+
+  // From now on the written file holds what was frozen: use it instead of the heap copies.
+  const char* d = mapped->data();
+  db->Rebase(frozen, d + l.offset[kIndexEntries], mapped);
+  auto segment = std::make_shared<const detail::KeyframeSegment>(
+      reinterpret_cast<const detail::KeyframeRecord*>(d + l.offset[kRecords]), n,
+      reinterpret_cast<const uint8_t*>(d + l.offset[kPayload]), l.size[kPayload], stride, mapped);
+  std::unique_lock<std::shared_mutex> lock(mutex_);
+  if (generation_ == generation) keyframes_->Rebase(std::move(segment));
+  lock.unlock();
+  segments.clear();  // the sealed heap keyframes are freed here, outside the lock
+}
+
+MapFileInfo Localizer::ReadMapInfo(const std::filesystem::path& path) {
+  const auto map = MappedFile::Open(path);
+  const std::string source = path.string();
+  const char* d = map->data();
+  uint32_t version = 0;
+  if (map->size() >= 12) std::memcpy(&version, d + 8, 4);
+  if (version == kVersion1 && std::memcmp(d, kMapMagic, 8) == 0) {
+    // Version 1: a framed payload (magic, version, size), read without the checksum.
+    constexpr size_t kFrame = 8 + 4 + 8;
+    if (map->size() < kFrame) throw std::runtime_error(source + ": map file is truncated");
+    BinaryReader r(d + kFrame, map->size() - kFrame, source);
+    MapFileInfo info;
+    info.version = kVersion1;
+    info.file_bytes = map->size();
+    info.vocabulary_path = r.GetString(1u << 16);
+    info.vocabulary_fingerprint = r.Get<uint64_t>();
+    info.retrieval_config = r.GetString(1u << 20);
+    info.meters_per_pixel = r.Get<double>();
+    const uint64_t db_bytes = r.Get<uint64_t>();
+    if (db_bytes > r.remaining()) r.Fail("map file is truncated (database)");
+    r.Skip(db_bytes);
+    info.keyframes = r.Get<uint64_t>();
+    info.descriptors = true;
+    return info;
+  }
+  Layout l;
+  uint32_t stride = 0;
+  return ParseHeader(d, map->size(), source, &l, &stride);
+}
+
+std::string Localizer::VocabularyPathOf(const std::filesystem::path& path) {
+  return ReadMapInfo(path).vocabulary_path;
+}
+
+void Localizer::Load(const std::filesystem::path& path) {
+  const std::string source = path.string();
+  const auto map = MappedFile::Open(path);
+  const char* d = map->data();
+  Layout l;
+  uint32_t stride = 0;
+  const MapFileInfo info = ParseHeader(d, map->size(), source, &l, &stride);
+  CheckHeader(info, source);
+  if (stride != PayloadStride()) {
+    throw std::runtime_error(source + ": the map's keyframes hold " + std::to_string(stride) +
+                             " bytes per keypoint, this node's features " +
+                             std::to_string(PayloadStride()));
+  }
+  // Every 64 MB of the index and records against its checksum, on all cores.
+  const char* region = d + l.offset[kIndexHeader];
+  const uint64_t region_size = l.offset[kChecksums] - l.offset[kIndexHeader];
+  const uint64_t chunks = (region_size + kChunk - 1) / kChunk;
+  const char* table = d + l.offset[kChecksums];
+  if (Checksum64(table, chunks * 8) != Get64(table + chunks * 8)) {
+    throw std::runtime_error(source + ": map file is corrupt (checksum table mismatch)");
+  }
+  const size_t threads = std::max<size_t>(1, std::min<size_t>(ThreadCount(0), chunks));
+  std::vector<uint64_t> bad(threads, UINT64_MAX);
+  RunTasks(static_cast<int>(threads), [&](int t) {
+    for (uint64_t c = static_cast<uint64_t>(t); c < chunks; c += threads) {
+      const uint64_t len = std::min(kChunk, region_size - c * kChunk);
+      if (Checksum64(region + c * kChunk, len) != Get64(table + c * 8)) {
+        bad[static_cast<size_t>(t)] = c;
+        return;
+      }
+    }
+  });
+  for (uint64_t c : bad) {
+    if (c != UINT64_MAX) {
+      throw std::runtime_error(source + ": map file is corrupt (checksum mismatch in the 64 MB " +
+                               "at byte " + std::to_string(l.offset[kIndexHeader] + c * kChunk) +
+                               ")");
+    }
+  }
+  std::shared_ptr<BowDatabase> db = NewDatabase();
+  db->AttachMapped(region, l.size[kIndexHeader], d + l.offset[kIndexEntries], l.size[kIndexEntries],
+                   map, source + " (index)");
+  if (db->next_id() != info.keyframes) {
+    throw std::runtime_error(source + ": keyframe count does not match the index");
+  }
+  const auto* records = reinterpret_cast<const detail::KeyframeRecord*>(d + l.offset[kRecords]);
+  uint64_t offset = 0;
+  for (uint64_t i = 0; i < info.keyframes; ++i) {
+    const detail::KeyframeRecord& r = records[i];
+    auto bad_record = [&](const std::string& what) {
+      throw std::runtime_error(source + ": keyframe " + std::to_string(i) + " " + what);
+    };
+    if (r.width < static_cast<uint32_t>(kMinImageSide) ||
+        r.height < static_cast<uint32_t>(kMinImageSide) ||
+        static_cast<double>(r.width) * r.height > kMaxImagePixels ||
+        r.num_keypoints > kMaxKeypoints || (r.flags & ~detail::KeyframeRecord::kHasPose) != 0 ||
+        r.payload_offset != offset) {
+      bad_record("is malformed");
+    }
+    if ((r.flags & detail::KeyframeRecord::kHasPose) &&
+        !(std::isfinite(r.x) && std::isfinite(r.y) && std::isfinite(r.theta))) {
+      bad_record("has a non-finite pose");
+    }
+    offset += static_cast<uint64_t>(r.num_keypoints) * stride;
+  }
+  if (offset != l.size[kPayload]) {
+    throw std::runtime_error(source + ": the keyframes' payloads do not fill their section");
+  }
+  auto store = NewStore();
+  store->Attach(std::make_shared<const detail::KeyframeSegment>(
+      records, info.keyframes, reinterpret_cast<const uint8_t*>(d + l.offset[kPayload]),
+      l.size[kPayload], stride, map));
+  std::unique_lock<std::shared_mutex> lock(mutex_);
+  database_.swap(db);
+  keyframes_.swap(store);
+  ++generation_;
+  lock.unlock();  // the old map is freed without holding up callers
+}
+
+void Localizer::ImportVersion1(const std::filesystem::path& path) {
+  const FramedPayload payload = ReadFramedFile(path, kMapMagic, kVersion1, "map");
+  const std::string source = path.string();
+  BinaryReader r(payload.data(), payload.size(), source);
+  MapFileInfo info;
+  info.version = kVersion1;
+  info.vocabulary_path = r.GetString(1u << 16);
+  info.vocabulary_fingerprint = r.Get<uint64_t>();
+  info.retrieval_config = r.GetString(1u << 20);
+  info.meters_per_pixel = r.Get<double>();
+  CheckHeader(info, source);
+  const std::string db_blob = r.GetString(payload.size());
+  std::shared_ptr<BowDatabase> db = NewDatabase();
+  db->Deserialize(db_blob.data(), db_blob.size(), source + " (database)");
+  const uint64_t n = r.Get<uint64_t>();
+  if (n != db->next_id()) r.Fail("keyframe count does not match the database");
+  auto store = NewStore();
+  const bool sift = options_.retrieval.features.type == FeatureType::kSift;
+  for (uint64_t i = 0; i < n; ++i) {
+    detail::KeyframeRecord k;
+    k.stamp_ns = r.Get<int64_t>();
+    const bool has_pose = r.Get<uint8_t>() != 0;
+    k.x = r.Get<double>();
+    k.y = r.Get<double>();
+    k.theta = r.Get<double>();
+    const int32_t width = r.Get<int32_t>(), height = r.Get<int32_t>();
+    const std::vector<Keypoint> keypoints = r.GetVector<Keypoint>(kMaxKeypoints);
+    const int rows = r.Get<int32_t>(), cols = r.Get<int32_t>(), type = r.Get<int32_t>();
+    const auto bytes = r.GetVector<uint8_t>(kMaxKeypoints * 512);
+    if (rows < 0 || cols < 0 || static_cast<size_t>(rows) != keypoints.size() ||
+        (type != CV_8U && type != CV_32F) ||
+        bytes.size() != static_cast<size_t>(rows) * cols * (type == CV_8U ? 1 : 4) ||
+        width < kMinImageSide || height < kMinImageSide) {
+      r.Fail("keyframe " + std::to_string(i) + " is malformed");
+    }
+    if (has_pose && !(std::isfinite(k.x) && std::isfinite(k.y) && std::isfinite(k.theta))) {
+      r.Fail("keyframe " + std::to_string(i) + " has a non-finite pose");
+    }
+    for (const Keypoint& kp : keypoints) {
+      if (!(std::isfinite(kp.x) && std::isfinite(kp.y) && std::isfinite(kp.angle) &&
+            std::isfinite(kp.size))) {
+        r.Fail("keyframe " + std::to_string(i) + " has a non-finite keypoint");
+      }
+    }
+    // Descriptors as this node's extractor makes them (ORB: 32 bytes; SIFT: 128 floats).
+    if (rows > 0 && (type != (sift ? CV_32F : CV_8U) || cols != (sift ? 128 : 32))) {
+      r.Fail("keyframe " + std::to_string(i) + " has descriptors of another kind (" +
+             std::to_string(cols) + " columns) than this node's features");
+    }
+    k.flags = has_pose ? detail::KeyframeRecord::kHasPose : 0;
+    k.width = static_cast<uint32_t>(width);
+    k.height = static_cast<uint32_t>(height);
+    k.num_keypoints = static_cast<uint32_t>(keypoints.size());
+    cv::Mat descriptors;
+    if (rows > 0 && options_.keep_descriptors) {
+      descriptors = cv::Mat(rows, cols, type, const_cast<uint8_t*>(bytes.data()));
+    }
+    store->Append(k, detail::MakePayload(keypoints, descriptors, k.width, k.height));
+  }
+  if (r.remaining() != 0) r.Fail("trailing bytes after the keyframes");
+  std::unique_lock<std::shared_mutex> lock(mutex_);
+  database_.swap(db);
+  keyframes_.swap(store);
+  ++generation_;
+  lock.unlock();
+}
+
+}  // namespace gtbow
