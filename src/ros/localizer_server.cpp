@@ -80,6 +80,7 @@ ServerOptions ReadOptions(const ros::NodeHandle& pnh) {
   pnh.param("transport", o.transport, o.transport);
   pnh.param("meters_per_pixel", o.core.meters_per_pixel, o.core.meters_per_pixel);
   pnh.param("threads", o.core.threads, o.core.threads);
+  pnh.param("keep_descriptors", o.core.keep_descriptors, o.core.keep_descriptors);
   pnh.param("use_tf", o.use_tf, o.use_tf);
   pnh.param("tf_timeout", o.tf_timeout, o.tf_timeout);
   pnh.param("keyframe_min_distance", o.keyframe_min_distance, o.keyframe_min_distance);
