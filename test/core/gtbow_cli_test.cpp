@@ -15,6 +15,10 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "../fuzz/fuzz_fixture.h"
+#include "ground_texture_bow/core/file_util.h"
+#include "map_v1.h"
+#include "test_scene.h"
 #include "test_util.h"
 
 namespace fs = std::filesystem;
@@ -236,6 +240,65 @@ TEST_F(GtbowCli, EvalRunsOnAForeignDatasetAndTrainsItsOwnVocabulary) {
   EXPECT_NE(r.code, 0);
   EXPECT_NE(r.output.find("query_day000"), std::string::npos) << r.output;
   EXPECT_FALSE(fs::exists(dir_ / "e2"));
+}
+
+}  // namespace
+
+namespace {
+
+// A map of format version 1 (the fuzzers' 64-word fixture, four keyframes) converted by
+// `gtbow convert-map`; map-info tells both versions; bad input is refused by name.
+TEST_F(GtbowCli, ConvertMapTurnsAVersionOneMapIntoOneThatLoads) {
+  using namespace gtbow;
+  const synth::Scene scene = testing_util::SmallScene(0.3, 0.2, 0);
+  Localizer built(fuzz::FixtureVocabulary(), fuzz::FixtureVocabularyPath(),
+                  fuzz::FixtureOptions());
+  std::vector<testing_util::Version1Keyframe> v1;
+  for (const auto& im : scene.plan().images) {
+    if (v1.size() == 4) break;
+    ProcessedImage p = built.Process(scene.Render(im));
+    built.Add(p, 7, im.pose);
+    v1.push_back({p.features, p.width, p.height, 7, im.pose});
+  }
+  testing_util::WriteVersion1Map(dir_ / "old.gtmap", *fuzz::FixtureVocabulary(),
+                                 fuzz::FixtureVocabularyPath(), fuzz::FixtureOptions(), v1);
+  Result r = RunGtbow("map-info " + Out("old.gtmap"));
+  ASSERT_EQ(r.code, 0) << r.output;
+  EXPECT_NE(r.output.find("format version  1 (convert it: gtbow convert-map)"), std::string::npos)
+      << r.output;
+  r = RunGtbow("convert-map --in " + Out("old.gtmap") + " --out " + Out("new.gtmap"));
+  ASSERT_EQ(r.code, 0) << r.output;
+  EXPECT_NE(r.output.find("format version  2"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("keyframes       4"), std::string::npos) << r.output;
+  Localizer loaded(fuzz::FixtureVocabulary(), fuzz::FixtureVocabularyPath(),
+                   fuzz::FixtureOptions());
+  loaded.Load(dir_ / "new.gtmap");
+  ASSERT_EQ(loaded.size(), 4u);
+  for (uint32_t id = 0; id < 4; ++id) {
+    const auto a = built.QueryKeyframe(id, 3, true), b = loaded.QueryKeyframe(id, 3, true);
+    ASSERT_EQ(a.size(), b.size());
+    for (size_t k = 0; k < a.size(); ++k) {
+      EXPECT_EQ(a[k].id, b[k].id);
+      EXPECT_EQ(a[k].score, b[k].score);
+      EXPECT_EQ(a[k].relative.floor_from_query.x, b[k].relative.floor_from_query.x);
+    }
+  }
+  // Already converted; the same file in and out; a damaged input: each refused, nothing written.
+  r = RunGtbow("convert-map --in " + Out("new.gtmap") + " --out " + Out("again.gtmap"));
+  EXPECT_NE(r.code, 0);
+  EXPECT_NE(r.output.find("already format version 2"), std::string::npos) << r.output;
+  r = RunGtbow("convert-map --in " + Out("old.gtmap") + " --out " + Out("old.gtmap"));
+  EXPECT_NE(r.code, 0);
+  EXPECT_NE(r.output.find("--out must differ from --in"), std::string::npos) << r.output;
+  std::string bytes = ReadFile(dir_ / "old.gtmap");
+  bytes[bytes.size() / 2] ^= 1;
+  WriteFileAtomic(dir_ / "bad.gtmap", bytes);
+  r = RunGtbow("convert-map --in " + Out("bad.gtmap") + " --out " + Out("bad_new.gtmap"));
+  EXPECT_NE(r.code, 0);
+  EXPECT_NE(r.output.find("bad.gtmap"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("checksum"), std::string::npos) << r.output;
+  EXPECT_FALSE(fs::exists(dir_ / "again.gtmap"));
+  EXPECT_FALSE(fs::exists(dir_ / "bad_new.gtmap"));
 }
 
 }  // namespace
