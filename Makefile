@@ -9,6 +9,8 @@
 #                   row on it, and write docs/RESULTS.md with the plots
 #   make bench-scaling  the scaling benchmark, 1,000 to 1,000,000 images (real, then synthetic),
 #                   into docs/RESULTS.md
+#   make bench-map  a 1,000,000-keyframe map through the node's Localizer: saved while keyframes
+#                   and queries keep coming, loaded, answers compared; into docs/RESULTS.md
 #   make benchmark-real  the presets on datasets cut from real floor photos (REAL_FLOORS, default
 #                   ../shared/real_floors), a table per surface into docs/RESULTS.md
 #   make benchmark-authors  our presets beside the authors' choices (each alone and together)
@@ -28,8 +30,8 @@ CATKIN    := catkin_make -C $(WS) -DCMAKE_BUILD_TYPE=Release -j$(JOBS)
 BENCH_DATA ?= $(CURDIR)/build/benchmark/asphalt32k
 BENCH_OUT  ?= $(CURDIR)/build/benchmark/eval
 
-.PHONY: deps build demo test test-sanitize fuzz soak benchmark bench-scaling bench-data clean \
-  benchmark-real benchmark-authors benchmark-verification
+.PHONY: deps build demo test test-sanitize fuzz soak benchmark bench-scaling bench-map bench-data \
+  clean benchmark-real benchmark-authors benchmark-verification
 
 REAL_FLOORS ?= $(abspath $(CURDIR)/../shared/real_floors)
 
@@ -105,6 +107,15 @@ benchmark: bench-data
 bench-scaling: bench-data
 	@$(GTBOW) bench --dataset $(BENCH_DATA) --out build/bench_scaling
 	@python3 scripts/write_scaling.py build/bench_scaling docs
+
+# The warehouse map through the node's engine (gtbow::Localizer), both presets: 1,000,000
+# keyframes (the 32,085 real benchmark images, then synthetic ones), insertion, the map saved
+# while keyframes and queries keep coming, loaded cold and warm, and the answers compared with
+# those before the save. Needs about 15 GB of RAM and room for one map file (10+ GB) under
+# build/bench_map.
+bench-map: bench-data
+	@$(GTBOW) bench-map --dataset $(BENCH_DATA) --out build/bench_map
+	@python3 scripts/write_bench_map.py build/bench_map docs
 
 # Ten real floor photos (seven textured, three smooth concrete) as bounded regions, 320 x 240
 # images at 0.5 mm per pixel, days 0 and 180, every preset (about 5 minutes).

@@ -2,29 +2,22 @@
 // size it reports memory (resident set and bytes per image), insertion time, query time
 // (median and p95, one and two threads) for every preset, and map save and load times.
 //
-// Images up to the dataset's database split are real. Beyond it, images are synthetic: each
-// synthetic image draws its keypoint count from a real image and each keypoint's rows (word and
-// size bin, with its soft-assignment weights) and orientation from a real keypoint of the same
-// surface, then goes through the encoder's tf-idf and normalisation. Row frequencies, weights
-// and orientations thus follow the measured statistics; what is lost is the co-occurrence of
-// words within one place (synthetic images are unrelated to each other and to the queries).
-// The output says how many images of each size are synthetic.
-#include <fcntl.h>
+// Images up to the dataset's database split are real. Beyond it, images are synthetic
+// (synthetic_images.h: postings sampled from the real images' keypoint statistics). The output
+// says how many images of each size are synthetic.
 #include <malloc.h>
-#include <unistd.h>
 
 #include <algorithm>
 #include <atomic>
 #include <chrono>
 #include <cstdio>
 #include <filesystem>
-#include <fstream>
 #include <memory>
-#include <random>
 #include <sstream>
 #include <string>
 #include <thread>
 
+#include "bench_util.h"
 #include "commands.h"
 #include "ground_texture_bow/core/config.h"
 #include "ground_texture_bow/core/database.h"
@@ -32,6 +25,7 @@
 #include "ground_texture_bow/core/parallel.h"
 #include "ground_texture_bow/core/progress.h"
 #include "image_source.h"
+#include "synthetic_images.h"
 #include "timing.h"
 
 namespace fs = std::filesystem;
@@ -56,66 +50,6 @@ struct ScalingArgs {
   bool warm_only = false;
   uint64_t seed = 1;
   bool quiet = false;
-};
-
-// Resident set of this process, bytes (/proc/self/status VmRSS).
-size_t ResidentBytes() {
-  std::ifstream f("/proc/self/status");
-  std::string line;
-  while (std::getline(f, line)) {
-    if (line.rfind("VmRSS:", 0) == 0) return std::stoull(line.substr(6)) * 1024;
-  }
-  return 0;
-}
-
-// Keypoints of the real images, each with its rows and soft-assignment weights, for sampling
-// synthetic images.
-class KeypointPool {
- public:
-  explicit KeypointPool(const std::vector<BowVector>& real) {
-    for (const BowVector& v : real) {
-      counts_.push_back(static_cast<uint32_t>(v.angles.size()));
-      // Group the vector's keypoint entries (sorted by row) by keypoint.
-      std::vector<std::vector<std::pair<uint32_t, float>>> by_kp(v.angles.size());
-      for (const KeypointEntry& k : v.keypoints) by_kp[k.keypoint].push_back({k.row, k.assignment});
-      for (size_t i = 0; i < by_kp.size(); ++i) {
-        if (by_kp[i].empty()) continue;
-        offsets_.push_back(static_cast<uint32_t>(rows_.size()));
-        angles_.push_back(v.angles[i]);
-        for (const auto& [row, a] : by_kp[i]) {
-          rows_.push_back(row);
-          assignments_.push_back(a);
-        }
-      }
-    }
-    offsets_.push_back(static_cast<uint32_t>(rows_.size()));
-    if (angles_.empty())
-      throw std::runtime_error("bench: the real images have no keypoints to sample");
-  }
-
-  // A synthetic image, reproducible from `seed`.
-  BowVector Sample(const BowEncoder& enc, uint64_t seed) const {
-    std::mt19937_64 rng(seed);
-    const uint32_t n = counts_[rng() % counts_.size()];
-    BowVector v;
-    v.angles.resize(n);
-    for (uint32_t j = 0; j < n; ++j) {
-      const size_t p = rng() % angles_.size();
-      v.angles[j] = angles_[p];
-      for (uint32_t e = offsets_[p]; e < offsets_[p + 1]; ++e) {
-        v.keypoints.push_back({rows_[e], static_cast<uint16_t>(j), 0.0f, assignments_[e]});
-      }
-    }
-    return enc.FromAssignments(std::move(v), n);
-  }
-  size_t keypoints() const { return angles_.size(); }
-
- private:
-  std::vector<uint32_t> counts_;
-  std::vector<uint32_t> offsets_;
-  std::vector<uint32_t> rows_;
-  std::vector<float> assignments_;
-  std::vector<float> angles_;
 };
 
 struct QueryTiming {
@@ -143,25 +77,6 @@ struct PresetResult {
   size_t pool_keypoints = 0;
   std::vector<SizeResult> sizes;
 };
-
-// Drops a file's pages from the page cache (clean pages only: the file was fsynced).
-bool EvictFromPageCache(const fs::path& p) {
-  const int fd = ::open(p.c_str(), O_RDONLY | O_CLOEXEC);
-  if (fd < 0) return false;
-  const bool ok = ::posix_fadvise(fd, 0, 0, POSIX_FADV_DONTNEED) == 0;
-  ::close(fd);
-  return ok;
-}
-
-std::string Human(double bytes) {
-  char b[32];
-  if (bytes >= 1e9) {
-    std::snprintf(b, sizeof(b), "%.2f GB", bytes / 1e9);
-  } else {
-    std::snprintf(b, sizeof(b), "%.1f MB", bytes / 1e6);
-  }
-  return b;
-}
 
 PresetResult RunPreset(const ScalingArgs& a, const std::string& name, const RetrievalConfig& c,
                        const std::vector<ImageFeatures>& db_feats,
@@ -386,23 +301,10 @@ void RunScaling(ScalingArgs a) {
     presets.emplace_back("fast", LoadRetrievalConfig(GTBOW_CONFIG_DIR "/fast.yaml"));
   }
   const fs::path out = a.out;
-  fs::create_directories(out);
-  {
-    // Fail now, not after an hour, when the output directory cannot be written.
-    WriteFileAtomic(out / ".write_test", "");
-    fs::remove(out / ".write_test");
-  }
+  CheckWritableDirectory(out, "--out");
   const Dataset ds = Dataset::Load(a.dataset);
-  std::string qsplit = a.query_split;
-  if (qsplit.empty()) {
-    for (const auto& s : ds.SplitNames()) {
-      if (s.rfind("query", 0) == 0) {
-        qsplit = s;
-        break;
-      }
-    }
-    if (qsplit.empty()) qsplit = "database";
-  }
+  std::string qsplit = a.query_split.empty() ? FirstQuerySplit(ds) : a.query_split;
+  if (qsplit.empty()) qsplit = "database";
   const FeatureOptions& f = presets[0].second.features;
   const fs::path cache = a.no_cache ? fs::path() : fs::path(a.cache);
   ImageSource db_src = ImageSource::FromDataset(a.dataset, "database");

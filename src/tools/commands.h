@@ -11,6 +11,7 @@ void RegisterSynth(CLI::App& app);
 void RegisterTrainVocab(CLI::App& app);
 void RegisterBenchRetrieval(CLI::App& app);
 void RegisterBenchScaling(CLI::App& app);  // gtbow bench
+void RegisterBenchMap(CLI::App& app);      // gtbow bench-map
 void RegisterEval(CLI::App& app);
 void RegisterMapCommands(CLI::App& app);  // map-info, convert-map
 

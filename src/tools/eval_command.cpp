@@ -197,14 +197,10 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
       // own (with the consensus, when on), to count wrong poses among all of them.
       const auto candidates = db.Query(q_vecs[qi], static_cast<size_t>(lo.candidates), true);
       p.loc = VerifyCandidates(candidates, q_vecs[qi], map, geo, lo);
-      auto wrong_pose = [&](const Pose2D& e) {
-        return std::hypot(e.x - p.truth.x, e.y - p.truth.y) > kSuccessMeters ||
-               std::abs(WrapAngle(e.theta - p.truth.theta)) > kSuccessRadians;
-      };
       // One row per verified candidate: its evidence and its error against the truth.
       auto record = [&](size_t rank, const PoseEstimate& e) {
         ++p.verified;
-        const bool wrong = wrong_pose(e.floor_from_query);
+        const bool wrong = !IsCorrectPose(e.floor_from_query, p.truth);
         p.wrong += wrong ? 1 : 0;
         const Pose2D& f = e.floor_from_query;
         char b[512];
@@ -253,10 +249,8 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
         top1.push_back({p.ranking[0].score, IsRelevant(p.truth, db_pose[p.ranking[0].image], geo)});
       }
       if (p.loc.success) {
-        const Pose2D& e = p.loc.estimate.floor_from_query;
         closures.push_back({static_cast<double>(p.loc.estimate.inliers),
-                            std::hypot(e.x - p.truth.x, e.y - p.truth.y) <= kSuccessMeters &&
-                                std::abs(WrapAngle(e.theta - p.truth.theta)) <= kSuccessRadians});
+                            IsCorrectPose(p.loc.estimate.floor_from_query, p.truth)});
       }
       if (p.counted) {
         ++sr.counted;
@@ -275,7 +269,7 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
         const double er = std::abs(WrapAngle(e.theta - p.truth.theta));
         sr.err_mm.push_back(1000.0 * em);
         sr.err_deg.push_back(er * 180.0 / M_PI);
-        sr.localized += em <= kSuccessMeters && er <= kSuccessRadians ? 1 : 0;
+        sr.localized += IsCorrectPose(e, p.truth) ? 1 : 0;
       }
       const std::string& qn = q_src.name(qi);
       char b[256];

@@ -7,6 +7,7 @@
 #include <vector>
 
 #include "ground_texture_bow/core/config.h"
+#include "ground_texture_bow/core/geometry.h"
 #include "ground_texture_bow/core/pose.h"
 #include "ground_texture_bow/eval/dataset.h"
 #include "ground_texture_bow/eval/metrics.h"
@@ -20,6 +21,13 @@ inline constexpr size_t kScalingQueries = 20;
 inline constexpr size_t kRecallN[] = {1, 2, 5, 10, 20, 50, 100};
 inline constexpr double kSuccessMeters = 0.0048;
 inline constexpr double kSuccessRadians = 1.5 * M_PI / 180.0;
+
+// The evaluation's criterion of a right pose: within kSuccessMeters and kSuccessRadians of the
+// ground truth.
+inline bool IsCorrectPose(const Pose2D& estimate, const Pose2D& truth) {
+  return std::hypot(estimate.x - truth.x, estimate.y - truth.y) <= kSuccessMeters &&
+         std::abs(WrapAngle(estimate.theta - truth.theta)) <= kSuccessRadians;
+}
 
 // The paper's Table I rows and the presets (under config/) that reproduce them.
 inline constexpr std::pair<const char*, const char*> kAblation[] = {

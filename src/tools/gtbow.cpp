@@ -21,6 +21,7 @@ int main(int argc, char** argv) {
   gtbow::tools::RegisterTrainVocab(app);
   gtbow::tools::RegisterBenchRetrieval(app);
   gtbow::tools::RegisterBenchScaling(app);
+  gtbow::tools::RegisterBenchMap(app);
   gtbow::tools::RegisterEval(app);
   gtbow::tools::RegisterMapCommands(app);
   try {

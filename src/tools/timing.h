@@ -13,9 +13,9 @@ inline double Ms(std::chrono::steady_clock::duration d) {
   return std::chrono::duration<double, std::milli>(d).count();
 }
 
-// Mean, standard deviation, median and 95th percentile of a set of timings.
+// Mean, standard deviation, median, 95th and 99th percentiles and maximum of a set of timings.
 struct TimingStats {
-  double mean = 0, sd = 0, median = 0, p95 = 0;
+  double mean = 0, sd = 0, median = 0, p95 = 0, p99 = 0, max = 0;
 };
 
 inline TimingStats Summarise(std::vector<double> v) {
@@ -27,6 +27,8 @@ inline TimingStats Summarise(std::vector<double> v) {
   std::sort(v.begin(), v.end());
   s.median = v[v.size() / 2];
   s.p95 = v[std::min(v.size() - 1, v.size() * 95 / 100)];
+  s.p99 = v[std::min(v.size() - 1, v.size() * 99 / 100)];
+  s.max = v.back();
   return s;
 }
 

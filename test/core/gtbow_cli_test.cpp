@@ -138,6 +138,29 @@ TEST_F(GtbowCli, TrainEvaluateAndBenchmarkOnASyntheticFloor) {
     EXPECT_LT(mean, 31.9);  // a query of this tiny database: far below the paper's 32k-image figure
   }
 
+  // The map through the node's Localizer: the real keyframes, then synthetic ones, saved while
+  // a client inserts and another queries, loaded again; every answer survives the round trip
+  // and the map file is deleted.
+  r = RunGtbow("bench-map --dataset " + d + " --vocab " + Out("v.gtvoc") +
+               " --keyframes 300 --queries 4 --threads 1 --no-cache --no-plot --out " +
+               Out("bench_map") + " -q");
+  ASSERT_EQ(r.code, 0) << r.output;
+  EXPECT_NE(r.output.find("## Warehouse maps through the node"), std::string::npos) << r.output;
+  {
+    const YAML::Node bm = YAML::LoadFile((dir_ / "bench_map" / "bench_map.json").string());
+    ASSERT_EQ(bm["variants"].size(), 2u);  // high accuracy and fast
+    for (const YAML::Node& v : bm["variants"]) {
+      EXPECT_EQ(v["queries"].as<int>(), 4);
+      EXPECT_EQ(v["identical_answers"].as<int>(), 4) << v["mismatches"];
+      EXPECT_EQ(v["keyframes"].as<int>(), 300);
+      EXPECT_GT(v["synthetic"].as<int>(), 0);
+      EXPECT_GT(v["save"]["file_bytes"].as<double>(), 0.0);
+      EXPECT_GE(v["save"]["saved_keyframes"].as<int>(), 300);
+    }
+    for (const auto& e : fs::directory_iterator(dir_ / "bench_map"))
+      EXPECT_NE(e.path().extension(), ".gtmap") << e.path();
+  }
+
   // Bad input: missing split, too many words, corrupt vocabulary file.
   r = RunGtbow("train-vocab --dataset " + d + " --split nope --out " + Out("x.gtvoc") + " -q");
   EXPECT_NE(r.code, 0);
