@@ -4,6 +4,7 @@
 #include "ground_texture_bow/core/database.h"
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <cstring>
 #include <mutex>
@@ -205,8 +206,8 @@ void BowDatabase::WriteFrozen(
   }
 }
 
-void BowDatabase::Rebase(const Frozen& frozen, const char* entries,
-                         std::shared_ptr<const void> keep_alive) {
+double BowDatabase::Rebase(const Frozen& frozen, const char* entries,
+                           std::shared_ptr<const void> keep_alive) {
   std::vector<std::vector<CompactEntry>> compact_garbage;
   std::vector<std::vector<PreciseEntry>> precise_garbage;
   auto rebase = [&](auto* index, auto* garbage) {
@@ -229,12 +230,16 @@ void BowDatabase::Rebase(const Frozen& frozen, const char* entries,
     index->base_mapped = true;
   };
   std::unique_lock<std::shared_mutex> lock(mutex_);
+  const auto t0 = std::chrono::steady_clock::now();
   if (compact_) {
     rebase(compact_.get(), &compact_garbage);
   } else {
     rebase(precise_.get(), &precise_garbage);
   }
+  const double held =
+      std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
   lock.unlock();  // the heap copies are freed without holding up queries
+  return held;
 }
 
 void BowDatabase::AttachMapped(const char* header, size_t header_size, const char* entries,

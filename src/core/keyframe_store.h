@@ -13,6 +13,7 @@
 #pragma once
 
 #include <cstdint>
+#include <deque>
 #include <memory>
 #include <string>
 #include <vector>
@@ -87,7 +88,8 @@ class KeyframeSegment {
   size_t stride_ = 0;  // payload bytes per keypoint
   std::shared_ptr<const void> keep_;
   // heap: records, and payloads in blocks that never move (offset = block << 40 | position)
-  std::vector<KeyframeRecord> records_;
+  std::deque<KeyframeRecord> records_;  // grows without copying (a vector's doubling would
+                                        // stall one Add by copying every record)
   std::vector<std::unique_ptr<uint8_t[]>> blocks_;
   size_t block_size_ = 0, block_used_ = 0;
 };

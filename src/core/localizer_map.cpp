@@ -14,6 +14,7 @@
 //                 checksum in its record, checked when the keyframe is read (a load reads only
 //                 the index and records, not gigabytes of keypoints it may never need)
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <cstring>
 #include <mutex>
@@ -96,6 +97,13 @@ class ChunkedRegion {
 void PadFile(AtomicFileWriter* file, uint64_t to) {
   static const char zeros[kAlign] = {};
   while (file->written() < to) file->Write(zeros, std::min<uint64_t>(kAlign, to - file->written()));
+}
+
+void TouchPages(const char* data, size_t size) {
+  constexpr size_t kPage = 4096;
+  volatile char sink = 0;
+  for (size_t at = 0; at < size; at += kPage) sink = sink ^ data[at];
+  (void)sink;
 }
 
 uint64_t Get64(const char* p) {
@@ -202,20 +210,28 @@ void Localizer::CheckHeader(const MapFileInfo& info, const std::string& source) 
   }
 }
 
-void Localizer::Save(const std::filesystem::path& path) const {
+SaveStats Localizer::Save(const std::filesystem::path& path) const {
+  using Clock = std::chrono::steady_clock;
+  auto ms = [](Clock::time_point a, Clock::time_point b) {
+    return std::chrono::duration<double, std::milli>(b - a).count();
+  };
+  SaveStats stats;
   std::lock_guard<std::mutex> one(save_mutex_);
   std::shared_ptr<BowDatabase> db;
   BowDatabase::Frozen frozen;
   std::vector<std::shared_ptr<const detail::KeyframeSegment>> segments;
   uint64_t generation = 0;
   {
-    // The only wait a save imposes: sealing the index's tails and the keyframes' tail.
+    // One of the two waits a save imposes: sealing the index's tails and the keyframes' tail.
     std::unique_lock<std::shared_mutex> lock(mutex_);
+    const auto t0 = Clock::now();
     db = database_;
     frozen = db->Freeze();
     segments = keyframes_->Freeze();
     generation = generation_;
+    stats.seal_ms = ms(t0, Clock::now());
   }
+  const auto write_start = Clock::now();
   db->DescribeFrozen(&frozen);
   const uint64_t n = frozen.images;
   const size_t stride = PayloadStride();
@@ -304,17 +320,27 @@ void Localizer::Save(const std::filesystem::path& path) const {
   }
   if (file.written() != l.file_size) throw std::logic_error("Localizer::Save: layout mismatch");
   const std::shared_ptr<const MappedFile> mapped = file.CommitAndMap();
+  // The index's pages mapped now, here (they are in the page cache, just written): the first
+  // queries after the swap below then do not page-fault through gigabytes while they run. The
+  // keyframes' payloads are left to be mapped as verification reads them.
+  TouchPages(mapped->data() + l.offset[kIndexEntries], l.size[kIndexEntries]);
+  stats.write_ms = ms(write_start, Clock::now());
+  stats.keyframes = n;
+  stats.bytes = l.file_size;
 
   // From now on the written file holds what was frozen: use it instead of the heap copies.
   const char* d = mapped->data();
-  db->Rebase(frozen, d + l.offset[kIndexEntries], mapped);
   auto segment = std::make_shared<const detail::KeyframeSegment>(
       reinterpret_cast<const detail::KeyframeRecord*>(d + l.offset[kRecords]), n,
       reinterpret_cast<const uint8_t*>(d + l.offset[kPayload]), l.size[kPayload], stride, mapped);
+  stats.swap_ms = db->Rebase(frozen, d + l.offset[kIndexEntries], mapped);
   std::unique_lock<std::shared_mutex> lock(mutex_);
+  const auto t0 = Clock::now();
   if (generation_ == generation) keyframes_->Rebase(std::move(segment));
+  stats.swap_ms += ms(t0, Clock::now());
   lock.unlock();
   segments.clear();  // the sealed heap keyframes are freed here, outside the lock
+  return stats;
 }
 
 MapFileInfo Localizer::ReadMapInfo(const std::filesystem::path& path) {

@@ -129,7 +129,8 @@ class BowDatabase {
   Frozen Freeze();
   void DescribeFrozen(Frozen* frozen) const;
   void WriteFrozen(const std::function<void(const void* data, size_t size)>& write) const;
-  void Rebase(const Frozen& frozen, const char* entries, std::shared_ptr<const void> keep_alive);
+  // Returns how long it held the lock, milliseconds.
+  double Rebase(const Frozen& frozen, const char* entries, std::shared_ptr<const void> keep_alive);
   // Attaches an index embedded in a memory-mapped file (the map file): Serialize's header and
   // entries at addresses that `keep_alive` keeps valid; nothing is copied. Load's checks, but
   // not its checksums (the embedding file has its own); errors name `source`.

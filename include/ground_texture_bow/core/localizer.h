@@ -72,6 +72,17 @@ struct Keyframe {
 std::vector<Keypoint> StoredKeypoints(const std::vector<Keypoint>& keypoints, int width,
                                       int height);
 
+// How a Save went: how long it held the map's lock to seal what it writes, and to swap the heap
+// copy for the written file afterwards (the only waits it imposes on Add and queries), and how
+// long writing took (no lock held).
+struct SaveStats {
+  uint64_t keyframes = 0;
+  uint64_t bytes = 0;
+  double seal_ms = 0;   // lock held: tails sealed
+  double write_ms = 0;  // no lock: the file written, flushed and mapped
+  double swap_ms = 0;   // lock held: the index and keyframes pointed at the file
+};
+
 // What a map file's header says (Localizer::ReadMapInfo), for either format version.
 struct MapFileInfo {
   uint32_t version = 0;  // 1: before issue 17 (loaded whole, to convert); 2: memory-mapped
@@ -164,7 +175,7 @@ class Localizer {
   // and 64-byte keyframe records, with a checksum per 64 MB verified at Load on all cores; then
   // each keyframe's keypoints (StoredKeypoints, 8 bytes each) and, with keep_descriptors, its
   // descriptors, with a checksum per keyframe checked when the keyframe is read.
-  void Save(const std::filesystem::path& path) const;
+  SaveStats Save(const std::filesystem::path& path) const;
   // Replaces the map with a saved one, memory-mapped (nothing is copied into the heap; new
   // keyframes go to a growable tail). Throws std::runtime_error naming the file when it is
   // damaged, of another version (a version-1 map: the message says how to convert it), or made
