@@ -13,7 +13,13 @@
 //   payloads      per keyframe: packed keypoints, then descriptors when kept; each has its
 //                 checksum in its record, checked when the keyframe is read (a load reads only
 //                 the index and records, not gigabytes of keypoints it may never need)
+#include <sys/resource.h>
+#include <sys/syscall.h>
+#include <unistd.h>
+
 #include <algorithm>
+#include <exception>
+#include <thread>
 #include <chrono>
 #include <cmath>
 #include <cstring>
@@ -104,6 +110,23 @@ void TouchPages(const char* data, size_t size) {
   volatile char sink = 0;
   for (size_t at = 0; at < size; at += kPage) sink = sink ^ data[at];
   (void)sink;
+}
+
+// Runs `work` on a thread of its own at nice 19 (its own thread: an unprivileged process can
+// lower a thread's priority but not raise it back) and waits; its exception is rethrown here.
+template <class Work>
+void RunAtLowestPriority(Work&& work) {
+  std::exception_ptr error;
+  std::thread worker([&] {
+    ::setpriority(PRIO_PROCESS, static_cast<id_t>(::syscall(SYS_gettid)), 19);
+    try {
+      work();
+    } catch (...) {
+      error = std::current_exception();
+    }
+  });
+  worker.join();
+  if (error) std::rethrow_exception(error);
 }
 
 uint64_t Get64(const char* p) {
@@ -232,98 +255,105 @@ SaveStats Localizer::Save(const std::filesystem::path& path) const {
     stats.seal_ms = ms(t0, Clock::now());
   }
   const auto write_start = Clock::now();
-  db->DescribeFrozen(&frozen);
-  const uint64_t n = frozen.images;
-  const size_t stride = PayloadStride();
-  uint64_t payload_bytes = 0, count = 0;
-  for (const auto& s : segments) {
-    for (size_t i = 0; i < s->size(); ++i) {
-      payload_bytes += static_cast<uint64_t>(s->Get(i).record->num_keypoints) * stride;
-    }
-    count += s->size();
-  }
-  if (count != n) throw std::logic_error("Localizer::Save: keyframes out of step with the index");
-
-  BinaryWriter h;
-  h.PutString(vocabulary_path_);
-  h.Put<uint64_t>(vocabulary_->fingerprint());
-  h.PutString(FormatRetrievalConfig(options_.retrieval));
-  h.Put<double>(options_.meters_per_pixel);
-  h.Put<uint64_t>(n);
-  h.Put<uint8_t>(options_.keep_descriptors ? 1 : 0);
-  h.Put<uint32_t>(static_cast<uint32_t>(stride));
-  const uint64_t header_size = h.buffer().size() + kSections * 16;
+  // Written by a thread of its own at the lowest CPU priority: on a busy robot, insertion,
+  // queries and image processing come first, and the save takes what is left.
+  uint64_t n = 0;
+  size_t stride = 0;
   Layout l;
-  l.size[kIndexHeader] = frozen.header.size();
-  l.size[kIndexEntries] = frozen.entries_bytes;
-  l.size[kRecords] = n * sizeof(detail::KeyframeRecord);
-  l.size[kPayload] = payload_bytes;
-  uint64_t at = AlignUp(kFixedHead + header_size);
-  for (int s = 0; s < kSections; ++s) {
-    l.offset[s] = AlignUp(at);
-    if (s == kChecksums) {
-      const uint64_t region = l.offset[kChecksums] - l.offset[kIndexHeader];
-      l.size[kChecksums] = ((region + kChunk - 1) / kChunk + 1) * 8;
-    }
-    at = l.offset[s] + l.size[s];
-  }
-  l.file_size = at;
-  for (int s = 0; s < kSections; ++s) {
-    h.Put<uint64_t>(l.offset[s]);
-    h.Put<uint64_t>(l.size[s]);
-  }
-  char head[kFixedHead] = {};
-  std::memcpy(head, kMapMagic, 8);
-  std::memcpy(head + 8, &kMapVersion, 4);
-  const uint64_t fixed[3] = {h.buffer().size(), Checksum64(h.buffer().data(), h.buffer().size()),
-                             l.file_size};
-  std::memcpy(head + 16, fixed, sizeof(fixed));
-
-  AtomicFileWriter file(path);
-  file.Write(head, kFixedHead);
-  file.Write(h.buffer());
-  PadFile(&file, l.offset[kIndexHeader]);
-  const uint64_t base = l.offset[kIndexHeader];
-  ChunkedRegion region(&file, l.offset[kChecksums] - base);
-  region.Write(frozen.header.data(), frozen.header.size());
-  region.Pad(l.offset[kIndexEntries] - base);
-  db->WriteFrozen([&](const void* data, size_t size) { region.Write(data, size); });
-  region.Pad(l.offset[kRecords] - base);
-  {
-    std::vector<detail::KeyframeRecord> batch;
-    batch.reserve(16384);
-    uint64_t offset = 0;
+  std::shared_ptr<const MappedFile> mapped;
+  RunAtLowestPriority([&] {
+    db->DescribeFrozen(&frozen);
+    n = frozen.images;
+    stride = PayloadStride();
+    uint64_t payload_bytes = 0, count = 0;
     for (const auto& s : segments) {
       for (size_t i = 0; i < s->size(); ++i) {
-        detail::KeyframeRecord r = *s->Get(i).record;
-        r.payload_offset = offset;
-        offset += static_cast<uint64_t>(r.num_keypoints) * stride;
-        batch.push_back(r);
-        if (batch.size() == batch.capacity()) {
-          region.Write(batch.data(), batch.size() * sizeof(batch[0]));
-          batch.clear();
+        payload_bytes += static_cast<uint64_t>(s->Get(i).record->num_keypoints) * stride;
+      }
+      count += s->size();
+    }
+    if (count != n) throw std::logic_error("Localizer::Save: keyframes out of step with the index");
+
+    BinaryWriter h;
+    h.PutString(vocabulary_path_);
+    h.Put<uint64_t>(vocabulary_->fingerprint());
+    h.PutString(FormatRetrievalConfig(options_.retrieval));
+    h.Put<double>(options_.meters_per_pixel);
+    h.Put<uint64_t>(n);
+    h.Put<uint8_t>(options_.keep_descriptors ? 1 : 0);
+    h.Put<uint32_t>(static_cast<uint32_t>(stride));
+    const uint64_t header_size = h.buffer().size() + kSections * 16;
+    l.size[kIndexHeader] = frozen.header.size();
+    l.size[kIndexEntries] = frozen.entries_bytes;
+    l.size[kRecords] = n * sizeof(detail::KeyframeRecord);
+    l.size[kPayload] = payload_bytes;
+    uint64_t at = AlignUp(kFixedHead + header_size);
+    for (int s = 0; s < kSections; ++s) {
+      l.offset[s] = AlignUp(at);
+      if (s == kChecksums) {
+        const uint64_t region = l.offset[kChecksums] - l.offset[kIndexHeader];
+        l.size[kChecksums] = ((region + kChunk - 1) / kChunk + 1) * 8;
+      }
+      at = l.offset[s] + l.size[s];
+    }
+    l.file_size = at;
+    for (int s = 0; s < kSections; ++s) {
+      h.Put<uint64_t>(l.offset[s]);
+      h.Put<uint64_t>(l.size[s]);
+    }
+    char head[kFixedHead] = {};
+    std::memcpy(head, kMapMagic, 8);
+    std::memcpy(head + 8, &kMapVersion, 4);
+    const uint64_t fixed[3] = {h.buffer().size(), Checksum64(h.buffer().data(), h.buffer().size()),
+                               l.file_size};
+    std::memcpy(head + 16, fixed, sizeof(fixed));
+
+    AtomicFileWriter file(path);
+    file.Write(head, kFixedHead);
+    file.Write(h.buffer());
+    PadFile(&file, l.offset[kIndexHeader]);
+    const uint64_t base = l.offset[kIndexHeader];
+    ChunkedRegion region(&file, l.offset[kChecksums] - base);
+    region.Write(frozen.header.data(), frozen.header.size());
+    region.Pad(l.offset[kIndexEntries] - base);
+    db->WriteFrozen([&](const void* data, size_t size) { region.Write(data, size); });
+    region.Pad(l.offset[kRecords] - base);
+    {
+      std::vector<detail::KeyframeRecord> batch;
+      batch.reserve(16384);
+      uint64_t offset = 0;
+      for (const auto& s : segments) {
+        for (size_t i = 0; i < s->size(); ++i) {
+          detail::KeyframeRecord r = *s->Get(i).record;
+          r.payload_offset = offset;
+          offset += static_cast<uint64_t>(r.num_keypoints) * stride;
+          batch.push_back(r);
+          if (batch.size() == batch.capacity()) {
+            region.Write(batch.data(), batch.size() * sizeof(batch[0]));
+            batch.clear();
+          }
         }
       }
+      region.Write(batch.data(), batch.size() * sizeof(batch[0]));
     }
-    region.Write(batch.data(), batch.size() * sizeof(batch[0]));
-  }
-  region.Pad(l.offset[kChecksums] - base);
-  std::vector<uint64_t> sums = region.sums();
-  sums.push_back(Checksum64(sums.data(), sums.size() * 8));
-  file.Write(sums.data(), sums.size() * 8);
-  PadFile(&file, l.offset[kPayload]);
-  for (const auto& s : segments) {
-    for (size_t i = 0; i < s->size(); ++i) {
-      const detail::KeyframeView v = s->Get(i);
-      file.Write(v.payload, static_cast<size_t>(v.record->num_keypoints) * stride);
+    region.Pad(l.offset[kChecksums] - base);
+    std::vector<uint64_t> sums = region.sums();
+    sums.push_back(Checksum64(sums.data(), sums.size() * 8));
+    file.Write(sums.data(), sums.size() * 8);
+    PadFile(&file, l.offset[kPayload]);
+    for (const auto& s : segments) {
+      for (size_t i = 0; i < s->size(); ++i) {
+        const detail::KeyframeView v = s->Get(i);
+        file.Write(v.payload, static_cast<size_t>(v.record->num_keypoints) * stride);
+      }
     }
-  }
-  if (file.written() != l.file_size) throw std::logic_error("Localizer::Save: layout mismatch");
-  const std::shared_ptr<const MappedFile> mapped = file.CommitAndMap();
-  // The index's pages mapped now, here (they are in the page cache, just written): the first
-  // queries after the swap below then do not page-fault through gigabytes while they run. The
-  // keyframes' payloads are left to be mapped as verification reads them.
-  TouchPages(mapped->data() + l.offset[kIndexEntries], l.size[kIndexEntries]);
+    if (file.written() != l.file_size) throw std::logic_error("Localizer::Save: layout mismatch");
+    mapped = file.CommitAndMap();
+    // The index's pages mapped now, here (they are in the page cache, just written): the first
+    // queries after the swap below then do not page-fault through gigabytes while they run. The
+    // keyframes' payloads are left to be mapped as verification reads them.
+    TouchPages(mapped->data() + l.offset[kIndexEntries], l.size[kIndexEntries]);
+  });
   stats.write_ms = ms(write_start, Clock::now());
   stats.keyframes = n;
   stats.bytes = l.file_size;
