@@ -111,46 +111,53 @@ struct PreciseEntry {
 };
 static_assert(sizeof(PreciseEntry) == 8, "precise entries are 8 bytes");
 
-// Rows of entries: a read-only base segment (loaded), the entries sealed by a map save that is
-// still writing them (BowDatabase::Freeze; empty otherwise), and a growable tail (added).
+// Rows of entries, three arrays indexed by row so that a map save swaps whole arrays, not rows:
+// a read-only base segment per row (loaded, or the file a save wrote), the entries sealed by a
+// save that is still writing them (`sealed`: empty, no row at all, otherwise), and a growable
+// tail per row (added).
 template <class E>
 struct PostingIndex {
-  struct Row {
-    const E* base = nullptr;
-    size_t base_count = 0;
-    std::vector<E> sealed;
-    std::vector<E> tail;
-    size_t Frozen() const { return base_count + sealed.size(); }
+  using Entry = E;
+  struct Base {
+    const E* data = nullptr;
+    size_t count = 0;
   };
-  explicit PostingIndex(uint32_t num_rows) : rows(num_rows) {}
-  std::vector<Row> rows;
+  explicit PostingIndex(uint32_t num_rows) : base(num_rows), tail(num_rows) {}
+  uint32_t num_rows() const { return static_cast<uint32_t>(tail.size()); }
+  std::vector<Base> base;
+  std::vector<std::vector<E>> sealed;
+  std::vector<std::vector<E>> tail;
   std::shared_ptr<const void> keep_alive;  // owns the base segments (mapping or block)
   size_t base_bytes = 0;
   bool base_mapped = false;  // the base segments lie in a memory-mapped file, not the heap
 
+  // Entries of a row that a map save writes (immutable until BowDatabase::Rebase).
+  size_t Frozen(uint32_t row) const {
+    return base[row].count + (sealed.empty() ? 0 : sealed[row].size());
+  }
   size_t Entries() const {
     size_t n = 0;
-    for (const Row& r : rows) n += r.Frozen() + r.tail.size();
+    for (uint32_t r = 0; r < num_rows(); ++r) n += Frozen(r) + tail[r].size();
     return n;
   }
   size_t Bytes() const {
-    size_t n = rows.capacity() * sizeof(Row) + base_bytes;
-    for (const Row& r : rows) n += (r.sealed.capacity() + r.tail.capacity()) * sizeof(E);
+    size_t n = base.capacity() * sizeof(Base) + base_bytes +
+               (sealed.capacity() + tail.capacity()) * sizeof(std::vector<E>);
+    for (const auto& v : sealed) n += v.capacity() * sizeof(E);
+    for (const auto& v : tail) n += v.capacity() * sizeof(E);
     return n;
   }
   // Calls f(pointer, count) for the row's base segment, sealed entries and tail, in order.
   template <class F>
   void ForEachSegment(uint32_t row, F&& f) const {
-    const Row& r = rows[row];
     ForEachFrozenSegment(row, f);
-    if (!r.tail.empty()) f(r.tail.data(), r.tail.size());
+    if (!tail[row].empty()) f(tail[row].data(), tail[row].size());
   }
-  // The same without the tail: what a map save writes (immutable until BowDatabase::Rebase).
+  // The same without the tail.
   template <class F>
   void ForEachFrozenSegment(uint32_t row, F&& f) const {
-    const Row& r = rows[row];
-    if (r.base_count > 0) f(r.base, r.base_count);
-    if (!r.sealed.empty()) f(r.sealed.data(), r.sealed.size());
+    if (base[row].count > 0) f(base[row].data, base[row].count);
+    if (!sealed.empty() && !sealed[row].empty()) f(sealed[row].data(), sealed[row].size());
   }
 };
 
@@ -169,7 +176,7 @@ template <class E>
 void AddToIndex(PostingIndex<E>* index, const BowVector& v, uint32_t id) {
   size_t k = 0;
   for (const BowEntry& e : v.entries) {
-    auto& tail = index->rows[e.row].tail;
+    auto& tail = index->tail[e.row];
     while (k < v.keypoints.size() && v.keypoints[k].row < e.row) ++k;
     while (k < v.keypoints.size() && v.keypoints[k].row == e.row) {
       const KeypointEntry& ke = v.keypoints[k++];

@@ -24,7 +24,7 @@ using namespace database_internal;
 // Writes the entries of every non-empty row (base, then tail) to `out`.
 template <class E, class Out>
 void WriteEntries(const PostingIndex<E>& index, Out&& out) {
-  for (uint32_t i = 0; i < index.rows.size(); ++i) {
+  for (uint32_t i = 0; i < index.num_rows(); ++i) {
     index.ForEachSegment(i, [&](const E* data, size_t count) { out(data, count * sizeof(E)); });
   }
 }
@@ -86,7 +86,7 @@ std::string SerializeHeader(const PostingIndex<E>& index, uint32_t num_rows, uin
   std::vector<uint32_t> rows, counts;
   uint64_t total = 0;
   for (uint32_t i = 0; i < num_rows; ++i) {
-    const uint64_t c = count(index.rows[i]);
+    const uint64_t c = count(index, i);
     if (c == 0) continue;
     rows.push_back(i);
     counts.push_back(static_cast<uint32_t>(c));
@@ -99,9 +99,9 @@ std::string SerializeHeader(const PostingIndex<E>& index, uint32_t num_rows, uin
   return std::move(w.buffer());
 }
 
-template <class Row>
-uint64_t AllEntries(const Row& r) {
-  return r.Frozen() + r.tail.size();
+template <class Index>
+uint64_t AllEntries(const Index& index, uint32_t row) {
+  return index.Frozen(row) + index.tail[row].size();
 }
 
 uint64_t Get64(const char* p) {
@@ -125,11 +125,10 @@ void BowDatabase::SerializeTo(
   std::shared_lock<std::shared_mutex> lock(mutex_);
   uint64_t entries_bytes = 0;
   const std::string header =
-      compact_
-          ? SerializeHeader(*compact_, num_rows_, fingerprint_, options_, removed_, &entries_bytes,
-                            AllEntries<PostingIndex<CompactEntry>::Row>)
-          : SerializeHeader(*precise_, num_rows_, fingerprint_, options_, removed_, &entries_bytes,
-                            AllEntries<PostingIndex<PreciseEntry>::Row>);
+      compact_ ? SerializeHeader(*compact_, num_rows_, fingerprint_, options_, removed_,
+                                 &entries_bytes, AllEntries<PostingIndex<CompactEntry>>)
+               : SerializeHeader(*precise_, num_rows_, fingerprint_, options_, removed_,
+                                 &entries_bytes, AllEntries<PostingIndex<PreciseEntry>>);
   const uint64_t hs = header.size();
   begin(8 + hs + entries_bytes);
   write(&hs, 8);
@@ -155,23 +154,32 @@ void BowDatabase::Deserialize(const char* data, size_t size, const std::string& 
 
 BowDatabase::Frozen BowDatabase::Freeze() {
   std::vector<uint8_t> removed;
-  auto seal = [](auto* index) {
-    for (auto& r : index->rows) {
-      if (r.tail.empty()) continue;
-      if (r.sealed.empty()) {
-        r.sealed.swap(r.tail);
-      } else {  // an earlier save failed before Rebase: its sealed entries stay sealed
-        r.sealed.insert(r.sealed.end(), r.tail.begin(), r.tail.end());
-        r.tail.clear();
+  // Fresh tails are made before taking the lock: under it, the seal is two swaps.
+  auto seal = [](auto* index, auto* fresh) {
+    if (index->sealed.empty()) {
+      index->sealed.swap(index->tail);
+      index->tail.swap(*fresh);
+    } else {  // an earlier save failed before Rebase: its sealed entries stay sealed
+      for (uint32_t r = 0; r < index->num_rows(); ++r) {
+        auto& t = index->tail[r];
+        index->sealed[r].insert(index->sealed[r].end(), t.begin(), t.end());
+        t.clear();
       }
     }
   };
+  std::vector<std::vector<CompactEntry>> fresh_compact;
+  std::vector<std::vector<PreciseEntry>> fresh_precise;
+  if (compact_) {
+    fresh_compact.resize(num_rows_);
+  } else {
+    fresh_precise.resize(num_rows_);
+  }
   {
     std::unique_lock<std::shared_mutex> lock(mutex_);
     if (compact_) {
-      seal(compact_.get());
+      seal(compact_.get(), &fresh_compact);
     } else {
-      seal(precise_.get());
+      seal(precise_.get(), &fresh_precise);
     }
     removed = removed_;
   }
@@ -183,7 +191,7 @@ BowDatabase::Frozen BowDatabase::Freeze() {
 
 void BowDatabase::DescribeFrozen(Frozen* f) const {
   // Without the lock: base and sealed entries change only in Rebase, which this saver calls.
-  auto frozen = [](const auto& r) -> uint64_t { return r.Frozen(); };
+  auto frozen = [](const auto& index, uint32_t row) -> uint64_t { return index.Frozen(row); };
   f->header = compact_ ? SerializeHeader(*compact_, num_rows_, fingerprint_, options_, f->removed,
                                          &f->entries_bytes, frozen)
                        : SerializeHeader(*precise_, num_rows_, fingerprint_, options_, f->removed,
@@ -193,10 +201,9 @@ void BowDatabase::DescribeFrozen(Frozen* f) const {
 void BowDatabase::WriteFrozen(
     const std::function<void(const void* data, size_t size)>& write) const {
   auto all = [&](const auto& index) {
-    for (uint32_t i = 0; i < index.rows.size(); ++i) {
-      index.ForEachFrozenSegment(i, [&](const auto* data, size_t count) {
-        write(data, count * sizeof(*data));
-      });
+    for (uint32_t i = 0; i < index.num_rows(); ++i) {
+      index.ForEachFrozenSegment(
+          i, [&](const auto* data, size_t count) { write(data, count * sizeof(*data)); });
     }
   };
   if (compact_) {
@@ -208,37 +215,40 @@ void BowDatabase::WriteFrozen(
 
 double BowDatabase::Rebase(const Frozen& frozen, const char* entries,
                            std::shared_ptr<const void> keep_alive) {
-  std::vector<std::vector<CompactEntry>> compact_garbage;
-  std::vector<std::vector<PreciseEntry>> precise_garbage;
-  auto rebase = [&](auto* index, auto* garbage) {
-    using E = std::remove_reference_t<decltype(index->rows[0].tail[0])>;
+  double held = 0;
+  auto rebase = [&](auto* index) {
+    using Index = std::remove_reference_t<decltype(*index)>;
+    using E = typename Index::Entry;
+    // The new base array is made without the lock: the frozen entries do not change.
+    std::vector<typename Index::Base> fresh(index->num_rows());
     const char* p = entries;
-    for (auto& r : index->rows) {
-      const size_t n = r.Frozen();
+    for (uint32_t r = 0; r < index->num_rows(); ++r) {
+      const size_t n = index->Frozen(r);
       if (n == 0) continue;
-      r.base = reinterpret_cast<const E*>(p);
-      r.base_count = n;
+      fresh[r] = {reinterpret_cast<const E*>(p), n};
       p += n * sizeof(E);
-      if (!r.sealed.empty()) garbage->push_back(std::move(r.sealed));
-      r.sealed = std::vector<E>();
     }
     if (static_cast<uint64_t>(p - entries) != frozen.entries_bytes) {
       throw std::logic_error("BowDatabase::Rebase: the index changed since Freeze");
     }
-    index->keep_alive = std::move(keep_alive);
+    std::vector<std::vector<E>> garbage;
+    std::shared_ptr<const void> old = std::move(keep_alive);
+    std::unique_lock<std::shared_mutex> lock(mutex_);
+    const auto t0 = std::chrono::steady_clock::now();
+    index->base.swap(fresh);
+    index->sealed.swap(garbage);
+    index->keep_alive.swap(old);
     index->base_bytes = frozen.entries_bytes;
     index->base_mapped = true;
+    held = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+    lock.unlock();
+    // The heap copies, the old base array and the old mapping are freed here, without the lock.
   };
-  std::unique_lock<std::shared_mutex> lock(mutex_);
-  const auto t0 = std::chrono::steady_clock::now();
   if (compact_) {
-    rebase(compact_.get(), &compact_garbage);
+    rebase(compact_.get());
   } else {
-    rebase(precise_.get(), &precise_garbage);
+    rebase(precise_.get());
   }
-  const double held =
-      std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
-  lock.unlock();  // the heap copies are freed without holding up queries
   return held;
 }
 
@@ -253,11 +263,10 @@ void BowDatabase::Save(const std::filesystem::path& path) const {
   uint64_t entries_bytes = 0;
   const uint32_t entry_size = compact_ ? sizeof(CompactEntry) : sizeof(PreciseEntry);
   const std::string header =
-      compact_
-          ? SerializeHeader(*compact_, num_rows_, fingerprint_, options_, removed_, &entries_bytes,
-                            AllEntries<PostingIndex<CompactEntry>::Row>)
-          : SerializeHeader(*precise_, num_rows_, fingerprint_, options_, removed_, &entries_bytes,
-                            AllEntries<PostingIndex<PreciseEntry>::Row>);
+      compact_ ? SerializeHeader(*compact_, num_rows_, fingerprint_, options_, removed_,
+                                 &entries_bytes, AllEntries<PostingIndex<CompactEntry>>)
+               : SerializeHeader(*precise_, num_rows_, fingerprint_, options_, removed_,
+                                 &entries_bytes, AllEntries<PostingIndex<PreciseEntry>>);
   std::string head(kFixedHeader, '\0');
   std::memcpy(&head[0], kDatabaseMagic, 8);
   std::memcpy(&head[8], &kDatabaseVersion, 4);
@@ -392,12 +401,10 @@ void BowDatabase::Attach(const char* header, size_t header_size, const char* ent
   // Rows point into the entries block; an entry's image id is checked where it is read (a
   // query only visits ids below the image count), so the block is not scanned here.
   auto attach = [&](auto* fresh) {
-    using E = std::remove_reference_t<decltype(fresh->rows[0].tail[0])>;
+    using E = typename std::remove_reference_t<decltype(*fresh)>::Entry;
     const char* p = entries;
     for (size_t n = 0; n < index.size(); ++n) {
-      auto& row = fresh->rows[index[n]];
-      row.base = reinterpret_cast<const E*>(p);
-      row.base_count = count[n];
+      fresh->base[index[n]] = {reinterpret_cast<const E*>(p), count[n]};
       p += static_cast<size_t>(count[n]) * sizeof(E);
     }
     fresh->keep_alive = keep_alive;

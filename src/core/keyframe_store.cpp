@@ -85,7 +85,8 @@ void KeyframeSegment::Append(KeyframeRecord record, const std::string& payload) 
   }
   record.payload_offset = static_cast<uint64_t>(blocks_.size() - 1) << kBlockShift | block_used_;
   record.payload_checksum = Checksum64(payload.data(), payload.size());
-  if (!payload.empty()) std::memcpy(blocks_.back().get() + block_used_, payload.data(), payload.size());
+  if (!payload.empty())
+    std::memcpy(blocks_.back().get() + block_used_, payload.data(), payload.size());
   block_used_ += payload.size();
   records_.push_back(record);
 }

@@ -330,7 +330,8 @@ std::vector<Keyframe> Localizer::Keyframes() const {
   std::shared_lock<std::shared_mutex> lock(mutex_);
   std::vector<Keyframe> out;
   out.reserve(keyframes_->size());
-  for (uint32_t id = 0; id < keyframes_->size(); ++id) out.push_back(KeyframeOf(id, *View(id).record));
+  for (uint32_t id = 0; id < keyframes_->size(); ++id)
+    out.push_back(KeyframeOf(id, *View(id).record));
   return out;
 }
 

@@ -18,13 +18,13 @@
 #include <unistd.h>
 
 #include <algorithm>
-#include <exception>
-#include <thread>
 #include <chrono>
 #include <cmath>
 #include <cstring>
+#include <exception>
 #include <mutex>
 #include <stdexcept>
+#include <thread>
 
 #include "ground_texture_bow/core/binary_io.h"
 #include "ground_texture_bow/core/file_util.h"
@@ -57,8 +57,7 @@ uint64_t AlignUp(uint64_t v) { return (v + kAlign - 1) / kAlign * kAlign; }
 
 std::string ConvertHint(const std::string& source) {
   return source + ": map format version 1 (written before memory-mapped maps) is not loaded " +
-         "directly any more; convert it once: gtbow convert-map --in " + source +
-         " --out NEW_FILE";
+         "directly any more; convert it once: gtbow convert-map --in " + source + " --out NEW_FILE";
 }
 
 // The sections' bytes [offset of kIndexHeader, offset of kChecksums) go through this: it writes
@@ -138,7 +137,9 @@ uint64_t Get64(const char* p) {
 // The fixed head and header of a version-2 file; `size` is the file's.
 MapFileInfo ParseHeader(const char* d, size_t size, const std::string& source, Layout* layout,
                         uint32_t* stride) {
-  auto fail = [&source](const std::string& what) { throw std::runtime_error(source + ": " + what); };
+  auto fail = [&source](const std::string& what) {
+    throw std::runtime_error(source + ": " + what);
+  };
   if (size < kFixedHead) fail("not a map file (too short: " + std::to_string(size) + " bytes)");
   if (std::memcmp(d, kMapMagic, 8) != 0) fail("not a map file (wrong magic number)");
   uint32_t version;
@@ -200,7 +201,9 @@ MapFileInfo ParseHeader(const char* d, size_t size, const std::string& source, L
 }  // namespace
 
 void Localizer::CheckHeader(const MapFileInfo& info, const std::string& source) const {
-  auto fail = [&source](const std::string& what) { throw std::runtime_error(source + ": " + what); };
+  auto fail = [&source](const std::string& what) {
+    throw std::runtime_error(source + ": " + what);
+  };
   if (info.vocabulary_fingerprint != vocabulary_->fingerprint()) {
     fail("the map was built with another vocabulary than " + vocabulary_path_ + " (the map names " +
          info.vocabulary_path + ")");
@@ -218,8 +221,7 @@ void Localizer::CheckHeader(const MapFileInfo& info, const std::string& source) 
       fail(std::string("the map's retrieval options cannot be read: ") + e.what());
     }
     if (!diff.empty()) {
-      fail("the map was built with other retrieval options (another preset or extractor): " +
-           diff);
+      fail("the map was built with other retrieval options (another preset or extractor): " + diff);
     }
   }
   if (info.meters_per_pixel != options_.meters_per_pixel) {

@@ -298,7 +298,7 @@ struct VariantResult {
   std::vector<Checkpoint> checkpoints;
   // The save under load.
   double save_ms = 0;
-  SaveStats save_stats;  // the save's own account: lock held to seal, to swap; writing
+  SaveStats save_stats;         // the save's own account: lock held to seal, to swap; writing
   size_t client_keyframes = 0;  // inserted by the client during and after the save
   std::vector<Call> add_calls, query_calls, localize_calls;
   Overlap add, query, localize;

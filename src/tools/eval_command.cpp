@@ -18,12 +18,12 @@
 #include <thread>
 
 #include "commands.h"
-#include "ground_texture_bow/core/localizer.h"
 #include "eval_results.h"
 #include "ground_texture_bow/core/binary_io.h"
 #include "ground_texture_bow/core/config.h"
 #include "ground_texture_bow/core/database.h"
 #include "ground_texture_bow/core/file_util.h"
+#include "ground_texture_bow/core/localizer.h"
 #include "ground_texture_bow/core/parallel.h"
 #include "ground_texture_bow/core/pose.h"
 #include "ground_texture_bow/core/progress.h"

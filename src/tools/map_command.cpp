@@ -77,8 +77,7 @@ void RegisterMapCommands(CLI::App& app) {
       "convert-map", "Convert a map of format version 1 to version 2 (memory-mapped loading)");
   cmd->add_option("--in", a->in, "Map file of version 1")->required()->check(CLI::ExistingFile);
   cmd->add_option("--out", a->out, "New map file (written atomically)")->required();
-  cmd->add_option("--vocab", a->vocab,
-                  "Vocabulary file (default: the path recorded in the map)");
+  cmd->add_option("--vocab", a->vocab, "Vocabulary file (default: the path recorded in the map)");
   cmd->add_flag("--drop-descriptors", a->drop_descriptors,
                 "Keep no keyframe descriptors (8 KB a keyframe for ORB): smaller maps, "
                 "verification from word pairs, no re-query by keyframe id");

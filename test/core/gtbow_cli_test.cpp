@@ -274,8 +274,7 @@ namespace {
 TEST_F(GtbowCli, ConvertMapTurnsAVersionOneMapIntoOneThatLoads) {
   using namespace gtbow;
   const synth::Scene scene = testing_util::SmallScene(0.3, 0.2, 0);
-  Localizer built(fuzz::FixtureVocabulary(), fuzz::FixtureVocabularyPath(),
-                  fuzz::FixtureOptions());
+  Localizer built(fuzz::FixtureVocabulary(), fuzz::FixtureVocabularyPath(), fuzz::FixtureOptions());
   std::vector<testing_util::Version1Keyframe> v1;
   for (const auto& im : scene.plan().images) {
     if (v1.size() == 4) break;

@@ -19,8 +19,8 @@
 #include "../fuzz/fuzz_util.h"
 #include "ground_texture_bow/core/file_util.h"
 #include "ground_texture_bow/eval/synth/generator.h"
-#include "test_scene.h"
 #include "map_v1.h"
+#include "test_scene.h"
 #include "test_util.h"
 
 namespace gtbow {
@@ -350,8 +350,8 @@ TEST_F(LocalizerFiles, DamagedOrForeignMapsAreRefusedAndTheCurrentMapKept) {
   {
     std::string bytes = good;
     const double nan = std::nan("");
-    std::memcpy(&bytes[good.find(std::string(reinterpret_cast<const char*>(&coordinate), 8))],
-                &nan, sizeof nan);
+    std::memcpy(&bytes[good.find(std::string(reinterpret_cast<const char*>(&coordinate), 8))], &nan,
+                sizeof nan);
     expect_refused(fuzz::RepairMap(bytes), "a NaN pose",
                    "keyframe " + std::to_string(posed) + " has a non-finite pose");
   }
@@ -506,8 +506,8 @@ TEST_F(LocalizerFiles, VersionOneMapsAreRefusedWithTheirConversionAndConvertExac
   for (size_t i = 0; i < s.db_images.size(); ++i) {
     ProcessedImage img = built.Process(s.db_images[i]);
     built.Add(img, 1000 + static_cast<int64_t>(i), s.db_poses[i]);
-    v1.push_back({img.features, img.width, img.height, 1000 + static_cast<int64_t>(i),
-                  s.db_poses[i]});
+    v1.push_back(
+        {img.features, img.width, img.height, 1000 + static_cast<int64_t>(i), s.db_poses[i]});
   }
   const auto old_path = dir() / "old.gtmap";
   testing_util::WriteVersion1Map(old_path, *s.vocabulary, "test.gtvoc", Options(), v1);
@@ -551,7 +551,8 @@ TEST_F(LocalizerFiles, MapsWithoutDescriptorsVerifyFromWordsAndSaySo) {
   EXPECT_FALSE(li.descriptors);
   EXPECT_TRUE(fi.descriptors);
   size_t keypoints = 0;
-  for (const Keyframe& k : full->Keyframes()) keypoints += full->KeyframeInfo(k.id)->keypoints.size();
+  for (const Keyframe& k : full->Keyframes())
+    keypoints += full->KeyframeInfo(k.id)->keypoints.size();
   EXPECT_EQ(fi.file_bytes - li.file_bytes, keypoints * 32);  // ORB: 32 bytes a keypoint
   int fixes = 0;
   for (const cv::Mat& r : s.revisits) fixes += lean.Localize(lean.Process(r)).success ? 1 : 0;
@@ -562,7 +563,8 @@ TEST_F(LocalizerFiles, MapsWithoutDescriptorsVerifyFromWordsAndSaySo) {
   } catch (const std::invalid_argument& e) {
     EXPECT_NE(std::string(e.what()).find("keep_descriptors"), std::string::npos) << e.what();
   }
-  for (const auto& [file, opts] : {std::pair{"lean.gtmap", Options()}, std::pair{"full.gtmap", o}}) {
+  for (const auto& [file, opts] :
+       {std::pair{"lean.gtmap", Options()}, std::pair{"full.gtmap", o}}) {
     Localizer other(s.vocabulary, "test.gtvoc", opts);
     try {
       other.Load(dir() / file);

@@ -23,8 +23,7 @@ struct Version1Keyframe {
   std::optional<gtbow::Pose2D> pose;
 };
 
-inline void WriteVersion1Map(const std::filesystem::path& path,
-                             const gtbow::Vocabulary& vocabulary,
+inline void WriteVersion1Map(const std::filesystem::path& path, const gtbow::Vocabulary& vocabulary,
                              const std::string& vocabulary_path,
                              const gtbow::LocalizerOptions& options,
                              const std::vector<Version1Keyframe>& keyframes) {

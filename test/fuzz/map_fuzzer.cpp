@@ -1,7 +1,7 @@
 // Fuzzes the map file reader (Localizer::Load) with the fixture vocabulary and options
-// (fuzz_fixture.h). Mode byte bit 0 repairs the file's checksums (fuzz_util.h's RepairMap). An accepted
-// map must answer a query for each of its keyframes (candidates in range, verification run on
-// the stored keypoints) and save again.
+// (fuzz_fixture.h). Mode byte bit 0 repairs the file's checksums (fuzz_util.h's RepairMap). An
+// accepted map must answer a query for each of its keyframes (candidates in range, verification run
+// on the stored keypoints) and save again.
 #include <cstdint>
 
 #include "fuzz_fixture.h"

@@ -229,9 +229,9 @@ class Localizer {
   int descriptor_cols_ = 0;           // the extractor's descriptors: 32 x CV_8U or 128 x CV_32F
   int descriptor_type_ = 0;
   std::unique_ptr<BowEncoder> encoder_;
-  mutable std::mutex save_mutex_;            // one Save at a time
-  mutable std::shared_mutex mutex_;          // guards database_, keyframes_ and generation_
-  std::shared_ptr<BowDatabase> database_;    // guarded by mutex_ (a save keeps its own reference)
+  mutable std::mutex save_mutex_;          // one Save at a time
+  mutable std::shared_mutex mutex_;        // guards database_, keyframes_ and generation_
+  std::shared_ptr<BowDatabase> database_;  // guarded by mutex_ (a save keeps its own reference)
   std::unique_ptr<detail::KeyframeStore> keyframes_;  // by id; guarded by mutex_
   uint64_t generation_ = 0;  // bumped by Load, ImportVersion1 and Reset; guarded by mutex_
 };
