@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Generates the data the rostests replay: a small synthetic asphalt floor, a vocabulary trained
 # on its separate training area (and a second one), and bags (database with TF: a mapping run; day-30 queries
-# without TF: a robot that must localize globally).
+# without TF: a robot that must localize globally), and a larger floor for large_map.test.
 # Usage: make_test_data.sh GTBOW GTBOW_IMAGES_TO_BAG OUT_DIR
 set -euo pipefail
 GTBOW="$1"
@@ -27,5 +27,17 @@ mkdir -p "$OUT.partial"
 "$TO_BAG" --dataset "$OUT.partial/drive" --split drive \
   --odometry "$OUT.partial/drive/drive_odometry.csv" --camera-offset 0.12 0.03 1.5708 \
   --out "$OUT.partial/drive.bag" -q > /dev/null
+# large_map.test: a map of about 2,000 keyframes (every image of a lawnmower run over a 1.26 m
+# square), small cheap images (320 x 240, no supersampling) of the same kind of floor as
+# vocab.gtvoc's; the nodes' ~meters_per_pixel in large_map.test must match this one.
+"$GTBOW" synth --out "$OUT.partial/many" --database-images 2000 --width 320 --height 240 \
+  --meters-per-pixel 0.00025 --supersample 1 --train 0 --queries 20 --days 30 -q > /dev/null
+"$TO_BAG" --dataset "$OUT.partial/many" --split database \
+  --out "$OUT.partial/many_mapping.bag" -q > /dev/null
+"$TO_BAG" --dataset "$OUT.partial/many" --split query_day030 --no-tf \
+  --out "$OUT.partial/many_queries.bag" -q > /dev/null
+# The bags hold the images; only the dataset's description (dataset.yaml: meters_per_pixel) and
+# ground truth are kept.
+rm -rf "$OUT.partial/many/images"
 rm -rf "$OUT"
 mv "$OUT.partial" "$OUT"

@@ -7,6 +7,8 @@
 //   services.test      Services.*    (services_rostest.cpp)   external mode, compressed images,
 //                                    the map services
 //   soak.test          Soak.*        (soak_rostest.cpp)       `make soak`, and 60 s under TSan
+//   large_map.test     LargeMap.*    (large_map_rostest.cpp)  a 2,000-keyframe map answers the
+//                                    same after ~save_map, loaded or kept by the mapper
 // The suites replay the bags test/ros/make_test_data.sh generated (images and ground-truth TF of
 // a small synthetic floor) and check what comes out against the ground truth.
 #pragma once
