@@ -152,11 +152,19 @@ void BowDatabase::Deserialize(const char* data, size_t size, const std::string& 
   Attach(data + 8, hs, entries, n, std::move(block), source, false);
 }
 
-BowDatabase::Frozen BowDatabase::Freeze() {
-  std::vector<uint8_t> removed;
-  // Fresh tails are made before taking the lock: under it, the seal is two swaps.
+BowDatabase::Frozen BowDatabase::PrepareFreeze() const {
+  Frozen f;
+  if (compact_) {
+    f.spare = std::make_shared<std::vector<std::vector<CompactEntry>>>(num_rows_);
+  } else {
+    f.spare = std::make_shared<std::vector<std::vector<PreciseEntry>>>(num_rows_);
+  }
+  return f;
+}
+
+void BowDatabase::Freeze(Frozen* f) {
   auto seal = [](auto* index, auto* fresh) {
-    if (index->sealed.empty()) {
+    if (index->sealed.empty()) {  // two swaps: the tails become the sealed entries
       index->sealed.swap(index->tail);
       index->tail.swap(*fresh);
     } else {  // an earlier save failed before Rebase: its sealed entries stay sealed
@@ -167,26 +175,16 @@ BowDatabase::Frozen BowDatabase::Freeze() {
       }
     }
   };
-  std::vector<std::vector<CompactEntry>> fresh_compact;
-  std::vector<std::vector<PreciseEntry>> fresh_precise;
+  std::unique_lock<std::shared_mutex> lock(mutex_);
   if (compact_) {
-    fresh_compact.resize(num_rows_);
+    seal(compact_.get(), static_cast<std::vector<std::vector<CompactEntry>>*>(f->spare.get()));
   } else {
-    fresh_precise.resize(num_rows_);
+    seal(precise_.get(), static_cast<std::vector<std::vector<PreciseEntry>>*>(f->spare.get()));
   }
-  {
-    std::unique_lock<std::shared_mutex> lock(mutex_);
-    if (compact_) {
-      seal(compact_.get(), &fresh_compact);
-    } else {
-      seal(precise_.get(), &fresh_precise);
-    }
-    removed = removed_;
-  }
-  Frozen f;
-  f.images = static_cast<uint32_t>(removed.size());
-  f.removed = std::move(removed);
-  return f;
+  f->removed = removed_;
+  f->images = static_cast<uint32_t>(removed_.size());
+  lock.unlock();
+  f->spare.reset();  // the swapped-out empty array (or the unused spare) freed without the lock
 }
 
 void BowDatabase::DescribeFrozen(Frozen* f) const {

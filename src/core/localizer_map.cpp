@@ -246,15 +246,22 @@ SaveStats Localizer::Save(const std::filesystem::path& path) const {
   BowDatabase::Frozen frozen;
   std::vector<std::shared_ptr<const detail::KeyframeSegment>> segments;
   uint64_t generation = 0;
-  {
+  for (bool sealed = false; !sealed;) {
+    {
+      std::shared_lock<std::shared_mutex> lock(mutex_);
+      db = database_;
+    }
+    // The fresh tails are made before the lock (a million empty rows take milliseconds).
+    frozen = db->PrepareFreeze();
     // One of the two waits a save imposes: sealing the index's tails and the keyframes' tail.
     std::unique_lock<std::shared_mutex> lock(mutex_);
     const auto t0 = Clock::now();
-    db = database_;
-    frozen = db->Freeze();
+    if (database_ != db) continue;  // a map was loaded meanwhile: prepare for that one
+    db->Freeze(&frozen);
     segments = keyframes_->Freeze();
     generation = generation_;
     stats.seal_ms = ms(t0, Clock::now());
+    sealed = true;
   }
   const auto write_start = Clock::now();
   // Written by a thread of its own at the lowest CPU priority: on a busy robot, insertion,
@@ -343,10 +350,19 @@ SaveStats Localizer::Save(const std::filesystem::path& path) const {
     sums.push_back(Checksum64(sums.data(), sums.size() * 8));
     file.Write(sums.data(), sums.size() * 8);
     PadFile(&file, l.offset[kPayload]);
+    // The payloads (most of a map that keeps descriptors) are pushed to disk and dropped from
+    // the page cache as they are written: a save of gigabytes then does not crowd the robot's
+    // memory (the page cache filling up made the kernel reclaim inside Add's allocations).
+    // Verification maps a keyframe's payload again when it reads it.
+    uint64_t dropped = l.offset[kPayload];
     for (const auto& s : segments) {
       for (size_t i = 0; i < s->size(); ++i) {
         const detail::KeyframeView v = s->Get(i);
         file.Write(v.payload, static_cast<size_t>(v.record->num_keypoints) * stride);
+        if (file.written() - dropped >= kChunk) {
+          file.WriteBehind(dropped, file.written() - dropped);
+          dropped = file.written();
+        }
       }
     }
     if (file.written() != l.file_size) throw std::logic_error("Localizer::Save: layout mismatch");
@@ -409,7 +425,7 @@ std::string Localizer::VocabularyPathOf(const std::filesystem::path& path) {
   return ReadMapInfo(path).vocabulary_path;
 }
 
-void Localizer::Load(const std::filesystem::path& path) {
+size_t Localizer::Load(const std::filesystem::path& path) {
   const std::string source = path.string();
   const auto map = MappedFile::Open(path);
   const char* d = map->data();
@@ -486,6 +502,7 @@ void Localizer::Load(const std::filesystem::path& path) {
   keyframes_.swap(store);
   ++generation_;
   lock.unlock();  // the old map is freed without holding up callers
+  return info.keyframes;
 }
 
 void Localizer::ImportVersion1(const std::filesystem::path& path) {

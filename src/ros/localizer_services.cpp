@@ -95,9 +95,9 @@ bool LocalizerServer::OnSaveMap(ground_texture_bow::SaveMap::Request& req,
           "localization mode: the map is read-only and is not saved (set_mode first)");
     }
     if (req.path.empty()) throw std::invalid_argument("empty path");
-    localizer_->Save(req.path);
+    const gtbow::SaveStats saved = localizer_->Save(req.path);
     return MakeStatus(Status::OK,
-                      "saved " + std::to_string(localizer_->size()) + " keyframes to " + req.path);
+                      "saved " + std::to_string(saved.keyframes) + " keyframes to " + req.path);
   });
   return true;
 }
@@ -106,9 +106,8 @@ bool LocalizerServer::OnLoadMap(ground_texture_bow::LoadMap::Request& req,
                                 ground_texture_bow::LoadMap::Response& res) {
   res.status = Serve("load_map", true, [&] {
     if (req.path.empty()) throw std::invalid_argument("empty path");
-    localizer_->Load(req.path);
+    res.keyframes = static_cast<uint32_t>(localizer_->Load(req.path));
     ForgetMapState();
-    res.keyframes = static_cast<uint32_t>(localizer_->size());
     return MakeStatus(Status::OK,
                       "loaded " + std::to_string(res.keyframes) + " keyframes from " + req.path);
   });

@@ -24,8 +24,7 @@
 //
 // Thread safety: any number of concurrent Query() calls with one writer. Add(), Remove() and
 // Load() take the index's mutex exclusively; Query(), size() and Save() take it shared.
-// Freeze() and Rebase() take it exclusively for O(rows) pointer moves; WriteFrozen() takes it
-// not at all.
+// Freeze() and Rebase() take it exclusively for a few swaps; WriteFrozen() takes it not at all.
 #pragma once
 
 #include <cstdint>
@@ -112,8 +111,8 @@ class BowDatabase {
                    const std::function<void(const void* data, size_t size)>& write) const;
 
   // Writing the index into a map file while it keeps serving (Localizer::Save):
-  // - Freeze() seals what the index holds (each row's tail joins its sealed entries, in
-  //   O(rows) under the lock); DescribeFrozen() then gives Serialize's header for those
+  // - PrepareFreeze() then Freeze() seal what the index holds (the tails become the sealed
+  //   entries: two swaps under the lock); DescribeFrozen() then gives Serialize's header for those
   //   entries and their size, without the lock;
   // - WriteFrozen() streams them without the lock: Add and Query go on, touching only tails;
   // - Rebase() then points every row's frozen entries at the written copy (`entries`, in a
@@ -125,8 +124,11 @@ class BowDatabase {
     std::vector<uint8_t> removed;  // their flags
     std::string header;            // DescribeFrozen's
     uint64_t entries_bytes = 0;
+    std::shared_ptr<void> spare;  // PrepareFreeze's empty tails
   };
-  Frozen Freeze();
+  // Makes the empty tails that replace the sealed ones (outside any lock: O(rows) allocation).
+  Frozen PrepareFreeze() const;
+  void Freeze(Frozen* frozen);
   void DescribeFrozen(Frozen* frozen) const;
   void WriteFrozen(const std::function<void(const void* data, size_t size)>& write) const;
   // Returns how long it held the lock, milliseconds.

@@ -180,8 +180,8 @@ class Localizer {
   // keyframes go to a growable tail). Throws std::runtime_error naming the file when it is
   // damaged, of another version (a version-1 map: the message says how to convert it), or made
   // with another vocabulary, other BoW options or another keep_descriptors; the current map is
-  // kept then.
-  void Load(const std::filesystem::path& path);
+  // kept then. Returns the keyframes loaded.
+  size_t Load(const std::filesystem::path& path);
   // Replaces the map with a version-1 map file (before issue 17), read whole into the heap; for
   // gtbow convert-map (load it, then Save). Load's checks otherwise.
   void ImportVersion1(const std::filesystem::path& path);
