@@ -23,8 +23,8 @@ presets=(
   "$abl/ha_words.yaml" "$abl/ha_words_spread.yaml" "$abl/ha_words_fraction.yaml"
   "$abl/ha_words_angle.yaml" "$abl/ha_words_second.yaml" "$abl/ha_words_checks.yaml"
   "$abl/ha_descriptors.yaml" "$abl/ha_descriptors_sigma.yaml" "$abl/ha_descriptors_consensus.yaml"
-  "$cfg/high_accuracy.yaml"
-  "$abl/fast_words.yaml" "$abl/fast_descriptors.yaml" "$cfg/fast.yaml"
+  "$cfg/high_accuracy.yaml" "$abl/ha_no_descriptors.yaml"
+  "$abl/fast_words.yaml" "$abl/fast_descriptors.yaml" "$cfg/fast.yaml" "$abl/fast_no_descriptors.yaml"
   "$cfg/paper_literal.yaml"
 )
 args=()
