@@ -77,8 +77,6 @@ class ChunkedRegion {
       in_chunk_ += take;
       done_ += take;
       if (in_chunk_ == chunk_size()) {
-        // Written behind but kept in the page cache: the saver maps the index next.
-        file_->WriteBehind(file_->written() - in_chunk_, in_chunk_, /*drop=*/false);
         sums_.push_back(chunk_.Finish());
         in_chunk_ = 0;
         chunk_ = Checksum64Builder(std::min(kChunk, size_ - done_));
@@ -362,7 +360,7 @@ SaveStats Localizer::Save(const std::filesystem::path& path) const {
         const detail::KeyframeView v = s->Get(i);
         file.Write(v.payload, static_cast<size_t>(v.record->num_keypoints) * stride);
         if (file.written() - dropped >= kChunk) {
-          file.WriteBehind(dropped, file.written() - dropped, /*drop=*/true);
+          file.WriteBehind(dropped, file.written() - dropped);
           dropped = file.written();
         }
       }

@@ -35,11 +35,9 @@ class AtomicFileWriter {
   void Write(const void* data, size_t size);
   void Write(std::string_view piece) { Write(piece.data(), piece.size()); }
   size_t written() const { return written_; }
-  // Writes bytes [offset, offset + size) to disk from this thread and waits for it, and with
-  // `drop` drops them from the page cache: write-behind for files of gigabytes, so that the
-  // kernel's flusher threads (at normal priority) do not write them out in bursts while the
-  // robot works. Best effort: never fails.
-  void WriteBehind(size_t offset, size_t size, bool drop);
+  // Starts writing bytes [offset, offset + size) to disk, waits for it, and drops them from
+  // the page cache (write-behind for files of gigabytes). Best effort: never fails.
+  void WriteBehind(size_t offset, size_t size);
   void Commit();
   // Commit, and a read-only mapping of the bytes written (taken before the rename).
   std::shared_ptr<const MappedFile> CommitAndMap();
