@@ -63,13 +63,9 @@ def target_rows(data):
                      "%.2f ms (seal %.2f, swap %.2f)" % (held, save.get("seal_ms", 0.0),
                                                          save.get("swap_ms", 0.0)),
                      verdict(held, STALL_MS, "ms")))
-        add = save["add"]["during_ms"]["max"]
-        rows.append(("%s: longest `Add` while saving" % name, "<= %g ms" % STALL_MS,
-                     "%.2f ms (%.2f ms without a save)" % (add, save["add"]["without_ms"]["max"]),
-                     verdict(add, STALL_MS, "ms")))
-        # A query takes time of its own: its stall is what the save adds to the longest query
-        # seen without a save.
-        for key, what in (("query", "Query"), ("localize", "Localize")):
+        # A call takes time of its own (an Add waits for the query running when it comes): its
+        # stall is what the save adds to the longest such call seen without a save.
+        for key, what in (("add", "Add"), ("query", "Query"), ("localize", "Localize")):
             during, without = save[key]["during_ms"]["max"], save[key]["without_ms"]["max"]
             stall = max(0.0, during - without)
             rows.append(("%s: longest `%s` stall while saving" % (name, what), "<= %g ms" % STALL_MS,
