@@ -169,7 +169,7 @@ class Localizer {
   // Writes the map (vocabulary path and fingerprint, options, database, keyframes) atomically:
   // a failure leaves any existing file untouched. Throws std::runtime_error naming the path.
   // Insertion and queries go on while the file is written: the save holds the lock only to
-  // seal what the map holds (O(index rows) pointer moves) and, once written, to use the file's
+  // seal what the map holds (a few array swaps) and, once written, to use the file's
   // memory-mapped copy instead of the heap's. Saves are serialised.
   // Format (version 2, docs/ARCHITECTURE.md): the index as the core's memory-mappable layout
   // and 64-byte keyframe records, with a checksum per 64 MB verified at Load on all cores; then
