@@ -784,20 +784,10 @@ void RunBenchMap(const BenchMapArgs& a) {
     }
     if (!a.keep_map) fs::remove(map_file);
   }
-  WriteFileAtomic(out / "bench_map.json",
-                  ToJson(a, results, qsplit, std::min(real_available, a.keyframes), n_queries));
-  const std::string md =
-      ToMarkdown(results, qsplit, std::min(real_available, a.keyframes), n_queries);
-  WriteFileAtomic(out / "bench_map.md", md);
-  std::fputs(md.c_str(), stdout);
-  if (!a.no_plot) {
-    const std::string cmd = "/usr/bin/python3 " GTBOW_SCRIPTS_DIR "/plot_bench_map.py '" +
-                            (out / "bench_map.json").string() + "' '" +
-                            (out / "bench_map.png").string() + "'";
-    if (std::system(cmd.c_str()) != 0) std::fprintf(stderr, "plot: %s failed\n", cmd.c_str());
-  }
-  std::fprintf(stderr, "results in %s: bench_map.json, bench_map.md%s\n", out.c_str(),
-               a.no_plot ? "" : ", bench_map.png");
+  WriteBenchResults(out, "bench_map",
+                    ToJson(a, results, qsplit, std::min(real_available, a.keyframes), n_queries),
+                    ToMarkdown(results, qsplit, std::min(real_available, a.keyframes), n_queries),
+                    "plot_bench_map.py", a.no_plot);
 }
 
 }  // namespace

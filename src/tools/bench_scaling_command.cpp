@@ -320,18 +320,9 @@ void RunScaling(ScalingArgs a) {
     if (!a.quiet) std::fprintf(stderr, "preset %s\n", name.c_str());
     results.push_back(RunPreset(a, name, c, db_feats, q_feats, out));
   }
-  WriteFileAtomic(out / "scaling.json", Json(a, results, db_feats.size(), q_feats.size(), qsplit));
-  const std::string md = Markdown(results, db_feats.size(), q_feats.size(), qsplit);
-  WriteFileAtomic(out / "scaling.md", md);
-  std::fputs(md.c_str(), stdout);
-  if (!a.no_plot) {
-    const std::string cmd = "/usr/bin/python3 " GTBOW_SCRIPTS_DIR "/plot_scaling.py '" +
-                            (out / "scaling.json").string() + "' '" +
-                            (out / "scaling.png").string() + "'";
-    if (std::system(cmd.c_str()) != 0) std::fprintf(stderr, "plot: %s failed\n", cmd.c_str());
-  }
-  std::fprintf(stderr, "results in %s: scaling.json, scaling.md%s\n", out.c_str(),
-               a.no_plot ? "" : ", scaling.png");
+  WriteBenchResults(out, "scaling", Json(a, results, db_feats.size(), q_feats.size(), qsplit),
+                    Markdown(results, db_feats.size(), q_feats.size(), qsplit), "plot_scaling.py",
+                    a.no_plot);
 }
 
 }  // namespace

@@ -7,6 +7,7 @@
 #include <unistd.h>
 
 #include <cstdio>
+#include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <stdexcept>
@@ -72,6 +73,24 @@ inline void CheckWritableDirectory(const std::filesystem::path& dir, const std::
   } catch (const std::exception& e) {
     throw std::runtime_error(option + " " + dir.string() + " is not writable: " + e.what());
   }
+}
+
+// Writes `name`.json and `name`.md atomically into `out`, prints the Markdown, and unless
+// `no_plot` draws `name`.png with scripts/`plot_script` (a failed plot is reported, not fatal).
+inline void WriteBenchResults(const std::filesystem::path& out, const std::string& name,
+                              const std::string& json, const std::string& md,
+                              const std::string& plot_script, bool no_plot) {
+  WriteFileAtomic(out / (name + ".json"), json);
+  WriteFileAtomic(out / (name + ".md"), md);
+  std::fputs(md.c_str(), stdout);
+  if (!no_plot) {
+    const std::string cmd = "/usr/bin/python3 " GTBOW_SCRIPTS_DIR "/" + plot_script + " '" +
+                            (out / (name + ".json")).string() + "' '" +
+                            (out / (name + ".png")).string() + "'";
+    if (std::system(cmd.c_str()) != 0) std::fprintf(stderr, "plot: %s failed\n", cmd.c_str());
+  }
+  std::fprintf(stderr, "results in %s: %s.json, %s.md%s\n", out.c_str(), name.c_str(), name.c_str(),
+               no_plot ? "" : (", " + name + ".png").c_str());
 }
 
 // The dataset's first query split (sequences/query*.txt), "" when it has none.
