@@ -1,4 +1,5 @@
 // bad_input.test (BadInput.*): every kind of bad input is counted and reported; nothing is lost.
+#include "../fuzz/fuzz_util.h"
 #include "rostest_util.h"
 
 namespace {
@@ -18,10 +19,15 @@ TEST(BadInput, EachKindIsCountedReportedAndLosesNothing) {
     }
     return st;
   };
+  auto is_error = [](const NodeStatus& s) {
+    return s.status.level == diagnostic_msgs::DiagnosticStatus::ERROR;
+  };
   // A nodelet that cannot start (no such vocabulary) in the same manager stays inert, says why
   // on /diagnostics, and does not take the manager, or this nodelet, down.
   {
-    const NodeStatus broken = wait_status("/broken", [](const NodeStatus&) { return true; });
+    // Its first status may be diagnostic_updater's "Node starting up" (OK), published before
+    // the start-up failed: the report that counts is the ERROR that follows.
+    const NodeStatus broken = wait_status("/broken", is_error);
     ASSERT_TRUE(broken.seen) << "the nodelet that cannot start reports nothing on /diagnostics";
     EXPECT_EQ(broken.status.level, diagnostic_msgs::DiagnosticStatus::ERROR);
     EXPECT_NE(broken.status.message.find("no_such_vocabulary.gtvoc"), std::string::npos)
@@ -56,7 +62,7 @@ TEST(BadInput, EachKindIsCountedReportedAndLosesNothing) {
     load.request.type = "ground_texture_bow/LocalizerNodelet";
     load = Call("/localizer_manager/load_nodelet", load);
     EXPECT_TRUE(load.response.success);
-    const NodeStatus st = wait_status("/mismatched", [](const NodeStatus&) { return true; });
+    const NodeStatus st = wait_status("/mismatched", is_error);
     ASSERT_TRUE(st.seen) << "the nodelet with the mismatched map reports nothing on /diagnostics";
     EXPECT_EQ(st.status.level, diagnostic_msgs::DiagnosticStatus::ERROR);
     EXPECT_NE(st.status.message.find("the map was built with another vocabulary than " + g_data +
@@ -177,8 +183,12 @@ TEST(BadInput, EachKindIsCountedReportedAndLosesNothing) {
     EXPECT_EQ(entries, std::vector<std::string>{"map.gtmap"});
     EXPECT_EQ(::kill(manager, 0), 0) << "the manager died";
   }
+  // A flipped byte in the index (a load checks the index and the records against their
+  // checksums; a keyframe's stored keypoints are checked when they are read).
   std::string corrupt = good_bytes;
-  corrupt[corrupt.size() / 2] ^= 0x10;
+  const gtbow::fuzz::MapLayout layout = gtbow::fuzz::ParseMapLayout(good_bytes);
+  ASSERT_TRUE(layout.ok);
+  corrupt[layout.offset[1] + layout.size[1] / 2] ^= 0x10;
   // A corrupt, a truncated and a foreign map file (the vocabulary): refused, naming the file
   // and the defect.
   const std::tuple<std::string, std::string, std::string> bad_maps[] = {
