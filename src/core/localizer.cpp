@@ -168,7 +168,8 @@ detail::KeyframeView Localizer::View(uint32_t id) const { return keyframes_->Get
 std::string Localizer::Damaged(uint32_t id) const {
   const detail::KeyframeView v = View(id);
   if (v.verify && Checksum64(v.payload, v.payload_bytes) != v.record->payload_checksum) {
-    return "keyframe " + std::to_string(id) + "'s stored keypoints fail their checksum";
+    return "keyframe " + std::to_string(id) +
+           "'s stored keypoints and descriptors fail their checksum";
   }
   return "";
 }

@@ -14,9 +14,11 @@
 // Since the c_d of a posting sum to 1, d_w is the sum of its entries' weights; the plain dot
 // product and the DBoW2 L1 score are computed from that.
 //
-// Storage: each row is a read-only base segment (from Load: a memory-mapped file, so loading
-// does not copy the entries; from Deserialize: one owned block) followed by a growable tail
-// that Add() appends to. Insertion costs the same at any size.
+// Storage: each row is a read-only base segment (from Load or a map file: a memory-mapped
+// file, so loading does not copy the entries; from Deserialize: one owned block), the entries
+// a map save has sealed while it writes them (none otherwise), and a growable tail that Add()
+// appends to; each kind is one array over the rows, so a save swaps arrays, not rows.
+// Insertion costs the same at any size.
 //
 // Queries accumulate votes block by block over image ids (a block's accumulator fits in the
 // core's cache), each row scanned once with a cursor, and may split the blocks over several
