@@ -1,6 +1,8 @@
 # ground_texture_bow: the front door.
 #   make demo   install dependencies, build, and run the main job on the built-in default
 #   make test   install dependencies, build in build/ws, run every gtest and rostest
+#   make test-slow-disk  the same with every fsync delayed 200 ms (GTBOW_FSYNC_DELAY_MS) and
+#                   both cores kept busy: the verdicts must not change
 #   make test-sanitize  the same with AddressSanitizer + UndefinedBehaviorSanitizer (build/ws-asan),
 #                       then the concurrency tests under ThreadSanitizer (build/ws-tsan)
 #   make fuzz   the libFuzzer targets (clang), FUZZ_SECONDS each (default 600)
@@ -30,7 +32,7 @@ CATKIN    := catkin_make -C $(WS) -DCMAKE_BUILD_TYPE=Release -j$(JOBS)
 BENCH_DATA ?= $(CURDIR)/build/benchmark/asphalt32k
 BENCH_OUT  ?= $(CURDIR)/build/benchmark/eval
 
-.PHONY: deps build demo test test-sanitize fuzz soak benchmark bench-scaling bench-map bench-data \
+.PHONY: deps build demo test test-slow-disk test-sanitize fuzz soak benchmark bench-scaling bench-map bench-data \
   clean benchmark-real benchmark-authors benchmark-verification
 
 REAL_FLOORS ?= $(abspath $(CURDIR)/../shared/real_floors)
@@ -63,6 +65,9 @@ demo: build
 
 test: deps ws-src
 	@bash scripts/run_tests.sh "$(WS)" "$(JOBS)"
+
+test-slow-disk: deps ws-src
+	@bash scripts/run_tests.sh "$(WS)" "$(JOBS)" slow-disk
 
 # Every gtest and rostest again, everything built with ASan + UBSan in its own workspace; any
 # sanitizer report from any process (tests, nodes, the nodelet manager) fails the run.

@@ -1,6 +1,7 @@
 #!/usr/bin/env python3
 """Summarises catkin's JUnit results: per-suite lines, failures in detail, and a final
-'N passed, N failed' line. Exits 1 on any failure or when no test ran."""
+'N passed, N failed' line. Exits 1 on any failure, when no test ran, or when any one result
+file holds no test case (a gtest filter that matches nothing, a renamed suite in a rostest)."""
 import os
 import sys
 import xml.etree.ElementTree as ET
@@ -20,7 +21,11 @@ def main(root):
                 failed += 1
                 failures.append(f"{path}: unreadable result file ({e})")
                 continue
-            for case in tree.iter("testcase"):
+            cases = list(tree.iter("testcase"))
+            if not cases:
+                failed += 1
+                failures.append(f"FAILED {path}: no test ran (a filter that selects nothing?)")
+            for case in cases:
                 label = f"{case.get('classname', '')}.{case.get('name', '')}"
                 bad = case.find("failure") if case.find("failure") is not None else case.find("error")
                 if bad is not None:

@@ -1,13 +1,99 @@
 // mapping.test (Mapping.*): the nodelet maps a replayed run; revisits, loop closures, overlays,
-// markers.
+// markers; temporal consistency through a second nodelet on the same images.
+#include <diagnostic_msgs/DiagnosticArray.h>
+
 #include "rostest_util.h"
 
 namespace {
 
 using namespace rostest_util;
 
+// The value of `key` in the newest /diagnostics status whose name contains `node`, or -1.
+double DiagnosticValue(const std::vector<diagnostic_msgs::DiagnosticArray>& arrays,
+                       const std::string& node, const std::string& key) {
+  for (auto a = arrays.rbegin(); a != arrays.rend(); ++a) {
+    for (const auto& status : a->status) {
+      // Named "<nodelet name without the leading slash>: localizer".
+      const std::string name = node.substr(node.rfind('/') + 1);
+      if (status.name.rfind(name + ": ", 0) != 0) continue;
+      for (const auto& kv : status.values) {
+        if (kv.key == key) return std::stod(kv.value);
+      }
+    }
+  }
+  return -1;
+}
+
+// ~temporal_consistency 3 through the node: each loop closure it publishes comes after two
+// processed images in a row that also verified a candidate, every other image that verified
+// one is held and counted in /diagnostics ("loop closures held"), and the first image of each
+// run is held. A node that ignored the parameter would publish a closure for every image that
+// verified, and hold none.
+void ExpectTemporalConsistency(const std::string& node,
+                               const std::vector<ground_texture_bow::CandidateList>& lists,
+                               const std::vector<ground_texture_bow::LoopClosure>& closures,
+                               const Collector<diagnostic_msgs::DiagnosticArray>& diagnostics) {
+  const auto info = Info(node);
+  ASSERT_EQ(lists.size(), info.images_processed) << "a candidate list per processed image";
+  std::map<ros::Time, size_t> index;
+  std::vector<bool> verified;
+  for (const auto& l : lists) {
+    index[l.header.stamp] = verified.size();
+    bool any = false;
+    for (const auto& c : l.candidates) any |= c.verified;
+    verified.push_back(any);
+  }
+  int published_after_run = 0;
+  for (const auto& lc : closures) {
+    ASSERT_EQ(index.count(lc.header.stamp), 1u);
+    const size_t i = index.at(lc.header.stamp);
+    ASSERT_TRUE(verified[i]);
+    EXPECT_TRUE(i >= 2 && verified[i - 1] && verified[i - 2])
+        << "a closure at image " << i << " without two verified images before it";
+    published_after_run += i >= 2 && verified[i - 1] && verified[i - 2];
+  }
+  const int with_verified = static_cast<int>(std::count(verified.begin(), verified.end(), true));
+  // The counter, from a /diagnostics message sent after the last image was processed.
+  const ros::WallTime limit = ros::WallTime::now() + ros::WallDuration(30);
+  double held = -1;
+  while (ros::WallTime::now() < limit) {
+    const auto arrays = diagnostics.Get();
+    if (DiagnosticValue(arrays, node, "images processed") ==
+        static_cast<double>(info.images_processed)) {
+      held = DiagnosticValue(arrays, node, "loop closures held (temporal consistency)");
+      break;
+    }
+    ros::WallDuration(0.1).sleep();
+  }
+  std::printf(
+      "%s: %zu images processed, %d verified a candidate, %zu closures published, %.0f "
+      "held\n",
+      node.c_str(), lists.size(), with_verified, closures.size(), held);
+  if (held < 0) {
+    std::set<std::string> names;
+    const auto arrays = diagnostics.Get();
+    for (const auto& a : arrays) {
+      for (const auto& st : a.status) names.insert(st.name);
+    }
+    std::string seen;
+    for (const auto& n : names) seen += " '" + n + "'";
+    FAIL() << "no /diagnostics status of " << node << " after the replay (" << arrays.size()
+           << " messages; statuses:" << seen << "; images processed "
+           << DiagnosticValue(arrays, node, "images processed") << " against "
+           << info.images_processed << ")";
+  }
+  EXPECT_GE(closures.size(), 1u);
+  EXPECT_EQ(info.loop_closures, closures.size());
+  EXPECT_EQ(static_cast<int>(closures.size()) + static_cast<int>(held), with_verified);
+  EXPECT_GE(held, 2) << "the first two images of a run are held";
+  EXPECT_EQ(published_after_run, static_cast<int>(closures.size()));
+}
+
 TEST(Mapping, ReplayBuildsKeyframesAndRevisitsGetTheRightOnes) {
   Collector<ground_texture_bow::LoopClosure> closure_topic("/localizer/loop_closures");
+  Collector<ground_texture_bow::LoopClosure> n3_closures("/localizer_n3/loop_closures", 1000);
+  Collector<ground_texture_bow::CandidateList> n3_lists("/localizer_n3/candidates", 1000);
+  Collector<diagnostic_msgs::DiagnosticArray> diagnostics("/diagnostics", 1000);
   // The debug image is computed only with a subscriber: subscribe for the first part. The
   // node counts the overlays it draws (get_info: debug_images).
   Collector<sensor_msgs::Image> debug_topic("/localizer/debug_image", 10);
@@ -106,6 +192,21 @@ TEST(Mapping, ReplayBuildsKeyframesAndRevisitsGetTheRightOnes) {
   EXPECT_EQ(markers->markers[0].header.frame_id, "map");
   EXPECT_EQ(markers->markers[0].points.size(), 8u * info.database_size);
   EXPECT_EQ(markers->markers[1].points.size(), 2u * closures.size());
+
+  // The second nodelet saw the same images (some may have been dropped while it was busy:
+  // it keeps the newest); wait until it has dealt with all it received.
+  const ros::WallTime limit = ros::WallTime::now() + ros::WallDuration(60);
+  for (;;) {
+    const auto n3 = Info("/localizer_n3");
+    if (n3.images_received > 0 &&
+        n3.images_processed + n3.images_dropped + n3.images_rejected >= n3.images_received &&
+        n3_lists.Get().size() >= n3.images_processed) {
+      break;
+    }
+    ASSERT_LT(ros::WallTime::now(), limit) << "/localizer_n3 did not finish the replay";
+    ros::WallDuration(0.05).sleep();
+  }
+  ExpectTemporalConsistency("/localizer_n3", n3_lists.Get(), n3_closures.Get(), diagnostics);
 }
 
 }  // namespace
