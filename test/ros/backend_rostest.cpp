@@ -7,12 +7,15 @@
 // (its own state, by its stamps, after every later closure) and does not bend it, with the
 // consistency check alone (no robust loss) as well as with the defaults; with neither defence
 // it is accepted and bends the trajectory (the negative control showing the check matters).
+// Then the run's trajectories and closures go through scripts/backend_ate.py and
+// scripts/closure_precision.py, which must report what this test measured.
 #include <unistd.h>
 
 #include <optional>
 
 #include <nav_msgs/Odometry.h>
 
+#include "../core/test_util.h"
 #include "ground_texture_bow/SaveTrajectory.h"
 #include "ground_texture_bow/eval/dataset.h"
 #include "rostest_util.h"
@@ -21,6 +24,8 @@ namespace {
 
 using namespace rostest_util;
 using ground_texture_bow::SaveTrajectory;
+using gtbow::testing_util::CommandResult;
+using gtbow::testing_util::RunCommand;
 
 struct DriveFrame {
   nav_msgs::OdometryConstPtr odom;
@@ -106,7 +111,23 @@ constexpr double kWrongMm = 4.8, kWrongDeg = 1.5;
 // error of the injected wrong pair's distance.
 constexpr double kMaxAte = 0.004, kMaxFold = 0.005;
 
-// A closure's error against the ground truth (4.8 mm, 1.5 degrees: wrong beyond).
+// What Backend.ClosuresCorrectTheOdometryAndAWrongOneIsIgnored leaves for
+// Backend.TheScriptsReportTheRun: the files it wrote and what it measured on them.
+struct RunRecord {
+  bool done = false;
+  fs::path dir;                      // <node>.csv trajectories
+  double start = 0.0;                // stamp of the first image, s
+  double rate = 0.0;                 // images per second
+  std::vector<gtbow::Pose2D> truth;  // camera footprint of each image
+  std::map<ros::Time, size_t> index_of;
+  std::vector<ground_texture_bow::LoopClosure> closures;  // every one published, in order
+  size_t wrong_query = 0, wrong_match = 0;                // image indices of the injected one
+  Errors odometry;
+  std::map<std::string, Errors> ate;
+};
+RunRecord g_run;
+
+// A closure's error against the ground truth, as scripts/closure_precision.py measures it.
 struct ClosureError {
   double position_mm, heading_deg;
   bool wrong() const { return position_mm > kWrongMm || heading_deg > kWrongDeg; }
@@ -355,7 +376,189 @@ TEST(Backend, ClosuresCorrectTheOdometryAndAWrongOneIsIgnored) {
   EXPECT_GT(fold["backend_unprotected"], 2 * kMaxFold);
   EXPECT_GT(fold["backend_unprotected"], 3.0 * fold["backend_check_only"] + kMaxFold);
 
-  fs::remove_all(dir);
+  // For Backend.TheScriptsReportTheRun (which removes dir).
+  g_run.dir = dir;
+  g_run.start = start;
+  g_run.rate = rate;
+  g_run.truth = truth;
+  g_run.index_of = index_of;
+  g_run.closures = all;
+  g_run.wrong_query = q;
+  g_run.wrong_match = m;
+  g_run.odometry = odo;
+  g_run.ate = ate;
+  g_run.done = true;
+}
+
+// The demo's scripts on this run: scripts/backend_ate.py must report the ATE this test measured
+// (odometry alone and each backend) and check a claim (exit 1 when it fails),
+// scripts/closure_precision.py the closures published and the wrong ones among them (the
+// injected one, and crafted ones on either side of its tolerances); both exit non-zero on
+// input they cannot use.
+TEST(Backend, TheScriptsReportTheRun) {
+  ASSERT_TRUE(g_run.done) << "needs Backend.ClosuresCorrectTheOdometryAndAWrongOneIsIgnored";
+  const std::string py = "/usr/bin/python3 " GTBOW_SCRIPTS_DIR "/";
+  const std::string dataset = g_data + "/drive";
+  char timing[96];
+  std::snprintf(timing, sizeof(timing), " --start %.9f --rate %.9g", g_run.start, g_run.rate);
+  const std::string traj = (g_run.dir / "backend.csv").string();
+  const std::string check_only = (g_run.dir / "backend_check_only.csv").string();
+
+  // The numbers of a table's row, by its label (cells split at '|' and at '/').
+  auto row = [](const std::string& out, const std::string& label) {
+    std::vector<double> v;
+    std::stringstream ss(out);
+    std::string line;
+    while (std::getline(ss, line)) {
+      if (line.rfind("| " + label + " |", 0) != 0) continue;
+      line = line.substr(label.size() + 4);
+      std::replace(line.begin(), line.end(), '/', '|');
+      std::stringstream cells(line);
+      std::string cell;
+      while (std::getline(cells, cell, '|')) {
+        try {
+          v.push_back(std::stod(cell));
+        } catch (const std::exception&) {
+        }
+      }
+    }
+    return v;
+  };
+  const std::string ate_cmd = py + "backend_ate.py " + dataset + timing + " --run backend=" + traj +
+                              " --run check_only=" + check_only;
+  // A claim that holds on what this test measured (whatever the backends did): below twice
+  // the larger RMSE, odometry at least half the smaller improvement.
+  const double worst =
+      std::max(g_run.ate.at("backend").rmse, g_run.ate.at("backend_check_only").rmse);
+  char claim[96];
+  std::snprintf(claim, sizeof(claim), " --max-rmse-mm %.3f --min-improvement %.3f", 2e3 * worst,
+                0.5 * g_run.odometry.rmse / worst);
+  CommandResult r = RunCommand(ate_cmd + claim);
+  std::printf("%s", r.output.c_str());
+  ASSERT_EQ(r.code, 0) << r.output;
+  EXPECT_NE(r.output.find("verdict: PASS"), std::string::npos) << r.output;
+  const std::vector<std::pair<std::string, Errors>> expected = {
+      {"odometry alone", g_run.odometry},
+      {"backend", g_run.ate.at("backend")},
+      {"check_only", g_run.ate.at("backend_check_only")}};
+  for (const auto& [label, e] : expected) {
+    const std::vector<double> v = row(r.output, label);
+    ASSERT_EQ(v.size(), 3u) << label << " row in:\n" << r.output;
+    EXPECT_NEAR(v[0], 1e3 * e.rmse, 0.006) << label << " ATE RMSE (mm)";
+    EXPECT_NEAR(v[1], 1e3 * e.max, 0.006) << label << " ATE max (mm)";
+  }
+  // The claim fails: a bound below the default backend's RMSE; odometry not twice as much
+  // better than it is.
+  char bound[32];
+  std::snprintf(bound, sizeof(bound), "%g", 0.5e3 * g_run.ate.at("backend").rmse);  // as :g
+  r = RunCommand(ate_cmd + " --max-rmse-mm " + bound);
+  EXPECT_EQ(r.code, 1) << r.output;
+  EXPECT_NE(r.output.find(std::string("verdict: FAIL (claim: every backend's ATE RMSE below ") +
+                          bound + " mm): backend: ATE RMSE"),
+            std::string::npos)
+      << r.output;
+  std::snprintf(claim, sizeof(claim), " --min-improvement %.3f",
+                2.0 * g_run.odometry.rmse / g_run.ate.at("backend").rmse);
+  r = RunCommand(ate_cmd + claim);
+  EXPECT_EQ(r.code, 1) << r.output;
+  EXPECT_NE(r.output.find("verdict: FAIL (claim: odometry alone's at least"), std::string::npos)
+      << r.output;
+  // Bad input: a trajectory cut short, and stamps that are no drive image's.
+  {
+    std::ifstream in(traj);
+    std::ofstream out((g_run.dir / "short.csv").string());
+    std::string line;
+    for (int i = 0; i < 50 && std::getline(in, line); ++i) out << line << "\n";
+  }
+  r = RunCommand(py + "backend_ate.py " + dataset + timing +
+                 " --run short=" + (g_run.dir / "short.csv").string());
+  EXPECT_NE(r.code, 0) << r.output;
+  EXPECT_NE(r.output.find("drive images have no pose"), std::string::npos) << r.output;
+  r = RunCommand(py + "backend_ate.py " + dataset + " --start " + std::to_string(g_run.start) +
+                 " --rate " + std::to_string(2 * g_run.rate) + " --run backend=" + traj);
+  EXPECT_NE(r.code, 0) << r.output;
+
+  // closure_precision.py on the run's loop closures as the demo records them (a bag of the
+  // topic), with four more beside the tolerances (4.8 mm, 1.5 degrees): a real closure moved
+  // 10 mm and 3 mm, turned 2 and 1 degrees. Every closure counted, the wrong ones as this
+  // test counts them, the injected one and the two beyond the tolerances listed.
+  std::vector<ground_texture_bow::LoopClosure> recorded = g_run.closures;
+  const ground_texture_bow::LoopClosure* exact = nullptr;  // the most exact real closure
+  double exact_mm = 1e9;
+  for (const auto& c : g_run.closures) {
+    const ClosureError e = ErrorOf(c, g_run.truth, g_run.index_of);
+    if (e.heading_deg < 0.2 && e.position_mm < exact_mm) {
+      exact = &c;
+      exact_mm = e.position_mm;
+    }
+  }
+  ASSERT_NE(exact, nullptr);
+  ASSERT_LT(exact_mm, 0.5);
+  const std::vector<std::pair<double, double>> offsets = {
+      {0.010, 0.0}, {0.003, 0.0}, {0.0, 2.0 * M_PI / 180}, {0.0, 1.0 * M_PI / 180}};
+  for (const auto& [dx, dtheta] : offsets) {
+    ground_texture_bow::LoopClosure c = *exact;
+    c.match_from_query.x += dx;
+    c.match_from_query.theta += dtheta;
+    recorded.push_back(c);
+  }
+  size_t wrong = 0;
+  double max_mm = 0;
+  for (const auto& c : recorded) {
+    const ClosureError e = ErrorOf(c, g_run.truth, g_run.index_of);
+    wrong += e.wrong();
+    max_mm = std::max(max_mm, e.position_mm);
+  }
+  const ClosureError moved = ErrorOf(recorded[recorded.size() - 4], g_run.truth, g_run.index_of);
+  EXPECT_TRUE(moved.wrong()) << moved.position_mm << " mm";
+  EXPECT_FALSE(ErrorOf(recorded[recorded.size() - 3], g_run.truth, g_run.index_of).wrong());
+  EXPECT_TRUE(ErrorOf(recorded[recorded.size() - 2], g_run.truth, g_run.index_of).wrong());
+  EXPECT_FALSE(ErrorOf(recorded.back(), g_run.truth, g_run.index_of).wrong());
+  const std::string bag = (g_run.dir / "closures.bag").string();
+  {
+    rosbag::Bag out(bag, rosbag::bagmode::Write);
+    for (const auto& c : recorded) out.write("/localizer/loop_closures", c.header.stamp, c);
+  }
+  r = RunCommand(py + "closure_precision.py " + dataset + timing + " --run run=" + bag +
+                 " --list-wrong");
+  std::printf("%s", r.output.c_str());
+  ASSERT_EQ(r.code, 0) << r.output;
+  const std::vector<double> v = row(r.output, "run");
+  ASSERT_GE(v.size(), 5u) << r.output;
+  EXPECT_EQ(v[0], double(recorded.size())) << "closures published";
+  EXPECT_EQ(v[1], double(wrong)) << "wrong closures";
+  EXPECT_NEAR(v[4], max_mm, 0.006) << "position error max (mm)";
+  const std::string exact_pair =
+      "query image " + std::to_string(g_run.index_of.at(exact->query_stamp)) + " -> match " +
+      std::to_string(g_run.index_of.at(exact->match_stamp)) + ": ";
+  EXPECT_NE(r.output.find("run: query image " + std::to_string(g_run.wrong_query) + " -> match " +
+                          std::to_string(g_run.wrong_match) + ":"),
+            std::string::npos)
+      << "the injected closure is not listed as wrong:\n"
+      << r.output;
+  char listed[64];
+  std::snprintf(listed, sizeof(listed), "%.2f mm", moved.position_mm);
+  EXPECT_NE(r.output.find("run: " + exact_pair + listed), std::string::npos)
+      << "the closure moved 10 mm is not listed as wrong:\n"
+      << r.output;
+  size_t listed_exact = 0;
+  for (size_t at = r.output.find(exact_pair); at != std::string::npos;
+       at = r.output.find(exact_pair, at + 1)) {
+    ++listed_exact;
+  }
+  EXPECT_EQ(listed_exact, 2u) << "of the four closures beside the tolerances, the two beyond "
+                                 "them are wrong:\n"
+                              << r.output;
+  // Bad input: no such bag, and stamps that are no drive image's.
+  r = RunCommand(py + "closure_precision.py " + dataset + timing +
+                 " --run run=" + (g_run.dir / "missing.bag").string());
+  EXPECT_NE(r.code, 0) << r.output;
+  r = RunCommand(py + "closure_precision.py " + dataset + " --start " +
+                 std::to_string(g_run.start + 0.5 / g_run.rate) + " --rate " +
+                 std::to_string(g_run.rate) + " --run run=" + bag);
+  EXPECT_NE(r.code, 0) << r.output;
+  EXPECT_NE(r.output.find("is no drive image's"), std::string::npos) << r.output;
+  if (!HasFailure()) fs::remove_all(g_run.dir);
 }
 
 }  // namespace
