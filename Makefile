@@ -134,7 +134,8 @@ benchmark-authors: build
 	@bash scripts/benchmark_authors.sh $(GTBOW) build/benchmark/s4k build/benchmark/authors_eval
 
 # Issue 15's verification ablation on the real photographs and the 4,000-image asphalt (needs
-# make benchmark-real's dataset; renders the 4,000-image asphalt when absent; about 5 minutes):
+# make benchmark-real's dataset; renders the 4,000-image asphalt when absent, about 4 minutes;
+# then about 5 minutes, 11 on a loaded machine):
 # docs/RESULTS.md, sections "verification" and "descriptors" (each preset beside its variant
 # without descriptors).
 benchmark-verification: build
@@ -142,8 +143,8 @@ benchmark-verification: build
 	  build/benchmark/s4k build/benchmark/verification_eval
 
 # Issue 17's quantised keypoints: gtbow eval with and without --exact-keypoints on make
-# benchmark-real's dataset, every verified pose compared (about 3 minutes): docs/RESULTS.md,
-# section "keypoints".
+# benchmark-real's dataset, every verified pose compared (about 25 s with make benchmark-real's
+# feature and vocabulary cache): docs/RESULTS.md, section "keypoints".
 benchmark-keypoints: build
 	@bash scripts/benchmark_keypoints.sh $(GTBOW) build/benchmark/real build/benchmark/keypoints_eval
 

@@ -5,7 +5,8 @@
 # the unquantised ones. Both runs on the real floor photographs (make benchmark-real's dataset),
 # the same vocabularies (the feature and vocabulary cache), then every verified pose of one run
 # compared with the other's (verifications.csv): docs/RESULTS.md, section "keypoints". Exits
-# non-zero when a claim is missed (scripts/targets.py, KEYPOINTS). About 3 minutes.
+# non-zero when a claim is missed (scripts/targets.py, KEYPOINTS). About 25 s with make
+# benchmark-real's feature and vocabulary cache.
 # Usage: benchmark_keypoints.sh GTBOW REAL_DATA OUT_DIR
 set -euo pipefail
 export PATH="/usr/bin:$PATH"
