@@ -788,6 +788,20 @@ void RunBenchMap(const BenchMapArgs& a) {
                     ToJson(a, results, qsplit, std::min(real_available, a.keyframes), n_queries),
                     ToMarkdown(results, qsplit, std::min(real_available, a.keyframes), n_queries),
                     "plot_bench_map.py", a.no_plot);
+  // The loaded map must answer exactly as the map did before the save (README, docs/RESULTS.md):
+  // the results are written first (the differences are listed in bench_map.md), then the run
+  // fails.
+  std::string differ;
+  for (const VariantResult& r : results) {
+    if (r.identical == n_queries) continue;
+    differ += (differ.empty() ? "" : "; ") + r.variant.label() + ": " +
+              std::to_string(n_queries - r.identical) + " of " + std::to_string(n_queries) +
+              " answers differ";
+  }
+  if (!differ.empty()) {
+    throw std::runtime_error("bench-map: answers after the save and load differ from before (" +
+                             differ + "); listed in " + (out / "bench_map.md").string());
+  }
 }
 
 }  // namespace
