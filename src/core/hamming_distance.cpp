@@ -90,6 +90,15 @@ GTBOW_KERNEL_INLINE uint32_t PairLoop(const uint8_t* a, const uint8_t* b, int by
   return s;
 }
 
+// The distance of a 32-byte row `r` to the query chunks q0..q3 (ORB). (A function, not a
+// lambda: a lambda's body is not compiled for the target of the function it is written in.)
+template <class Pop>
+GTBOW_KERNEL_INLINE uint32_t Distance32(uint64_t q0, uint64_t q1, uint64_t q2, uint64_t q3,
+                                        const uint8_t* r) {
+  return Pop::Count(q0 ^ Load64(r)) + Pop::Count(q1 ^ Load64(r + 8)) +
+         Pop::Count(q2 ^ Load64(r + 16)) + Pop::Count(q3 ^ Load64(r + 24));
+}
+
 template <class Pop>
 GTBOW_KERNEL_INLINE int NearestLoop(const uint8_t* q, const uint8_t* rows, size_t stride, int n,
                                     int bytes, uint32_t* distance) {
@@ -98,13 +107,9 @@ GTBOW_KERNEL_INLINE int NearestLoop(const uint8_t* q, const uint8_t* rows, size_
   uint32_t best;
   if (bytes == 32) {  // ORB: the query's four chunks stay in registers
     const uint64_t q0 = Load64(q), q1 = Load64(q + 8), q2 = Load64(q + 16), q3 = Load64(q + 24);
-    auto dist = [&](const uint8_t* r) {
-      return Pop::Count(q0 ^ Load64(r)) + Pop::Count(q1 ^ Load64(r + 8)) +
-             Pop::Count(q2 ^ Load64(r + 16)) + Pop::Count(q3 ^ Load64(r + 24));
-    };
-    best = dist(rows);
+    best = Distance32<Pop>(q0, q1, q2, q3, rows);
     for (int i = 1; i < n; ++i) {
-      const uint32_t d = dist(rows + static_cast<size_t>(i) * stride);
+      const uint32_t d = Distance32<Pop>(q0, q1, q2, q3, rows + static_cast<size_t>(i) * stride);
       if (d < best) {
         best = d;
         arg = i;
@@ -464,6 +469,12 @@ GTBOW_KERNEL_INLINE uint32_t NeonPairInline(const uint8_t* a, const uint8_t* b, 
   return s;
 }
 
+// One 32-byte row: 32 byte counts of at most 8, their pairwise sums at most 16.
+GTBOW_KERNEL_INLINE uint32_t NeonDistance32(uint8x16_t q0, uint8x16_t q1, const uint8_t* r) {
+  return vaddlvq_u8(
+      vaddq_u8(vcntq_u8(veorq_u8(q0, vld1q_u8(r))), vcntq_u8(veorq_u8(q1, vld1q_u8(r + 16)))));
+}
+
 uint32_t NeonPair(const uint8_t* a, const uint8_t* b, int bytes) {
   return NeonPairInline(a, b, bytes);
 }
@@ -473,15 +484,11 @@ int NeonNearest(const uint8_t* q, const uint8_t* rows, size_t stride, int n, int
   if (n <= 0) return -1;
   int arg = 0;
   uint32_t best;
-  if (bytes == 32) {  // ORB: the query stays in two registers; 32 byte counts of at most 16
+  if (bytes == 32) {  // ORB: the query stays in two registers
     const uint8x16_t q0 = vld1q_u8(q), q1 = vld1q_u8(q + 16);
-    auto dist = [&](const uint8_t* r) -> uint32_t {
-      return vaddlvq_u8(
-          vaddq_u8(vcntq_u8(veorq_u8(q0, vld1q_u8(r))), vcntq_u8(veorq_u8(q1, vld1q_u8(r + 16)))));
-    };
-    best = dist(rows);
+    best = NeonDistance32(q0, q1, rows);
     for (int i = 1; i < n; ++i) {
-      const uint32_t d = dist(rows + static_cast<size_t>(i) * stride);
+      const uint32_t d = NeonDistance32(q0, q1, rows + static_cast<size_t>(i) * stride);
       if (d < best) {
         best = d;
         arg = i;

@@ -8,6 +8,7 @@
 #include <gtest/gtest.h>
 
 #include <cstdio>
+#include <cstdlib>
 #include <map>
 #include <memory>
 #include <regex>
@@ -46,7 +47,11 @@ Disassembly Disassemble(const std::string& library) {
     const bool branch =
         line.find("\tcall") != std::string::npos || line.find("\tjmp") != std::string::npos ||
         line.find("\tbl") != std::string::npos || line.find("\tb\t") != std::string::npos;
-    if (branch && line.find("<__popcount") != std::string::npos) ++d.popcount_calls[function];
+    // (The PLT stub of __popcountdi2, when there is one, jumps to the function itself.)
+    if (branch && line.find("<__popcount") != std::string::npos &&
+        function.rfind("__popcount", 0) != 0) {
+      ++d.popcount_calls[function];
+    }
     if (line.find("\tpopcnt ") != std::string::npos) ++d.popcnt[function];
     if (line.find("\tvpopcntq ") != std::string::npos) ++d.vpopcntq;
     if (line.find("\tvpshufb ") != std::string::npos) ++d.vpshufb;
@@ -54,15 +59,22 @@ Disassembly Disassemble(const std::string& library) {
   return d;
 }
 
+// The built library, or another one named by GTBOW_CORE_LIBRARY (to inspect an older build).
+std::string Library() {
+  const char* other = std::getenv("GTBOW_CORE_LIBRARY");
+  return other != nullptr && other[0] != '\0' ? other : GTBOW_CORE_LIBRARY;
+}
+
 TEST(PopcountCalls, TheCoreLibraryNeverCallsTheSoftwarePopcount) {
-  const Disassembly d = Disassemble(GTBOW_CORE_LIBRARY);
-  ASSERT_GT(d.lines, 10000u) << "objdump printed too little for " << GTBOW_CORE_LIBRARY;
+  const std::string library = Library();
+  const Disassembly d = Disassemble(library);
+  ASSERT_GT(d.lines, 10000u) << "objdump printed too little for " << library;
   int calls = 0;
   for (const auto& [function, n] : d.popcount_calls) {
     calls += n;
     ADD_FAILURE() << n << " call(s) of libgcc's software popcount in " << function;
   }
-  std::printf("%s: %d calls of __popcount*2\n", GTBOW_CORE_LIBRARY, calls);
+  std::printf("%s: %d calls of __popcount*2\n", library.c_str(), calls);
   EXPECT_EQ(calls, 0);
 #if defined(__x86_64__)
   // The disassembly is the real thing: the kernels are there, with their instructions.
