@@ -6,6 +6,7 @@
 #   make test-sanitize  the same with AddressSanitizer + UndefinedBehaviorSanitizer (build/ws-asan),
 #                       then the concurrency tests under ThreadSanitizer (build/ws-tsan)
 #   make fuzz   the libFuzzer targets (clang), FUZZ_SECONDS each (default 600)
+#   make test-arm  the SIMD kernels and their tests cross-built for aarch64, run under qemu-user
 #   make soak   10 minutes of a 4x real-time replay through the nodelet with concurrent services
 #   make benchmark  generate the default 32,000-image benchmark (once), evaluate every Table I
 #                   row on it, and write docs/RESULTS.md with the plots
@@ -37,8 +38,8 @@ CATKIN    := catkin_make -C $(WS) -DCMAKE_BUILD_TYPE=Release -j$(JOBS)
 BENCH_DATA ?= $(CURDIR)/build/benchmark/asphalt32k
 BENCH_OUT  ?= $(CURDIR)/build/benchmark/eval
 
-.PHONY: deps build demo test test-slow-disk test-sanitize fuzz soak benchmark bench-scaling bench-map \
-  bench-data clean benchmark-real benchmark-authors benchmark-verification benchmark-keypoints
+.PHONY: deps build demo test test-slow-disk test-sanitize test-arm fuzz soak benchmark bench-scaling \
+  bench-map bench-data clean benchmark-real benchmark-authors benchmark-verification benchmark-keypoints
 
 REAL_FLOORS ?= $(abspath $(CURDIR)/../shared/real_floors)
 
@@ -84,6 +85,12 @@ test-sanitize: deps
 	@bash scripts/link_package.sh "$(CURDIR)" "$(ASAN_WS)/src/ground_texture_bow"
 	@bash scripts/run_tests.sh "$(ASAN_WS)" "$(JOBS)" sanitize
 	@JOBS="$(JOBS)" bash scripts/run_tsan.sh "$(TSAN_WS)" "$(ASAN_WS)/build/ground_texture_bow/rostest_data"
+
+# The Hamming and byte-distance kernels (OpenCV-free) with their tests, cross-built for aarch64
+# (g++-aarch64-linux-gnu, static) and run under qemu-user for each GTBOW_SIMD value; installs
+# the cross compiler and qemu when missing (scripts/test_arm.sh).
+test-arm:
+	@bash scripts/test_arm.sh "$(CURDIR)/build/arm"
 
 # The file parsers under libFuzzer (test/fuzz): FUZZ_SECONDS per target (default 600), new
 # inputs merged into test/fuzz/corpus.

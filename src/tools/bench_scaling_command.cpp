@@ -25,6 +25,7 @@
 #include "ground_texture_bow/core/file_util.h"
 #include "ground_texture_bow/core/parallel.h"
 #include "ground_texture_bow/core/progress.h"
+#include "ground_texture_bow/core/simd.h"
 #include "image_source.h"
 #include "synthetic_images.h"
 #include "timing.h"
@@ -201,6 +202,8 @@ std::string Json(const ScalingArgs& a, const std::vector<PresetResult>& results,
   j.precision(6);
   j << "{\n  \"dataset\": \"" << a.dataset << "\",\n  \"real_images\": " << real_images
     << ",\n  \"query_split\": \"" << query_split << "\",\n  \"queries\": " << n_queries
+    << ",\n  \"kernels\": {\"hamming\": \"" << ActiveHammingKernelName() << "\", \"l2_bytes\": \""
+    << ActiveByteDistanceKernelName() << "\"}"
     << ",\n  \"synthetic_images_note\": \"images beyond real_images are synthetic postings sampled "
        "from "
        "keypoint rows, soft-assignment weights and orientations measured on the real images\",\n"
@@ -251,7 +254,8 @@ std::string Markdown(const std::vector<PresetResult>& results, size_t real_image
        "after "
        "insertion, spare capacity included. Load \"cold\" is after evicting the file from the page "
        "cache; every load verifies every checksum. \"top-1 same\": queries whose best image is the "
-       "one found at the largest all-real size (synthetic images do not displace it).\n\n";
+       "one found at the largest all-real size (synthetic images do not displace it). Kernels: "
+    << ActiveSimdKernels() << ".\n\n";
   for (const PresetResult& r : results) {
     m << "### " << r.name << " (r = " << r.config.bow.soft_assignment << ", "
       << (r.config.bow.compact_postings ? "compact 6-byte" : "precise 8-byte") << " entries)\n\n";
