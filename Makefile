@@ -6,6 +6,7 @@
 #   make test-sanitize  the same with AddressSanitizer + UndefinedBehaviorSanitizer (build/ws-asan),
 #                       then the concurrency tests under ThreadSanitizer (build/ws-tsan)
 #   make fuzz   the libFuzzer targets (clang), FUZZ_SECONDS each (default 600)
+#   make test-arm  the SIMD kernels and their tests cross-built for aarch64, run under qemu-user
 #   make soak   10 minutes of a 4x real-time replay through the nodelet with concurrent services
 #   make benchmark  generate the default 32,000-image benchmark (once), evaluate every Table I
 #                   row on it, and write docs/RESULTS.md with the plots
@@ -19,6 +20,11 @@
 #                   on the 4,000-image dataset issue 14 measured the authors' code on
 #   make benchmark-verification  issue 15's verification ablation (wrong verified poses) on the
 #                   real photographs and that dataset
+#   make benchmark-keypoints  verification against the map's quantised keypoints beside the
+#                   exact ones (issue 17), on make benchmark-real's data
+# Each benchmark writes its section of docs/RESULTS.md and fails (after writing) when a target
+# that README.md or docs/RESULTS.md claims is missed, or when an expected input (a surface, a
+# split, a preset, a size) is absent. The targets are in scripts/targets.py.
 SHELL := /bin/bash
 # Debian's catkin lives in /usr/bin's python3; a pyenv python3 earlier on PATH cannot see it.
 export PATH := /usr/bin:$(PATH)
@@ -32,8 +38,8 @@ CATKIN    := catkin_make -C $(WS) -DCMAKE_BUILD_TYPE=Release -j$(JOBS)
 BENCH_DATA ?= $(CURDIR)/build/benchmark/asphalt32k
 BENCH_OUT  ?= $(CURDIR)/build/benchmark/eval
 
-.PHONY: deps build demo test test-slow-disk test-sanitize fuzz soak benchmark bench-scaling bench-map bench-data \
-  clean benchmark-real benchmark-authors benchmark-verification
+.PHONY: deps build demo test test-slow-disk test-sanitize test-arm fuzz soak benchmark bench-scaling \
+  bench-map bench-data clean benchmark-real benchmark-authors benchmark-verification benchmark-keypoints
 
 REAL_FLOORS ?= $(abspath $(CURDIR)/../shared/real_floors)
 
@@ -80,6 +86,12 @@ test-sanitize: deps
 	@bash scripts/run_tests.sh "$(ASAN_WS)" "$(JOBS)" sanitize
 	@JOBS="$(JOBS)" bash scripts/run_tsan.sh "$(TSAN_WS)" "$(ASAN_WS)/build/ground_texture_bow/rostest_data"
 
+# The Hamming and byte-distance kernels (OpenCV-free) with their tests, cross-built for aarch64
+# (g++-aarch64-linux-gnu, static) and run under qemu-user for each GTBOW_SIMD value; installs
+# the cross compiler and qemu when missing (scripts/test_arm.sh).
+test-arm:
+	@bash scripts/test_arm.sh "$(CURDIR)/build/arm"
+
 # The file parsers under libFuzzer (test/fuzz): FUZZ_SECONDS per target (default 600), new
 # inputs merged into test/fuzz/corpus.
 fuzz: deps
@@ -103,24 +115,25 @@ bench-data: build
 
 benchmark: bench-data
 	@$(GTBOW) eval --dataset $(BENCH_DATA) --ablation --out $(BENCH_OUT)
-	@python3 scripts/write_results.py $(BENCH_OUT) docs
-	@python3 scripts/check_benchmark.py --full $(BENCH_OUT)/results.json
+	@python3 scripts/write_results.py $(BENCH_OUT) docs; rc=$$?; \
+	  python3 scripts/check_benchmark.py --full $(BENCH_OUT)/results.json || exit $$?; exit $$rc
 
 # Memory, insertion, query (one and two threads), save and load from 1,000 to 1,000,000
 # database images, both presets: the 32,085 real benchmark images, then synthetic postings
 # sampled from their statistics (about 25 minutes; needs about 12 GB of RAM and 6 GB of disk).
 bench-scaling: bench-data
-	@$(GTBOW) bench --dataset $(BENCH_DATA) --out build/bench_scaling
+	@$(GTBOW) bench-scaling --dataset $(BENCH_DATA) --out build/bench_scaling
 	@python3 scripts/write_scaling.py build/bench_scaling docs
 
 # The warehouse map through the node's engine (gtbow::Localizer), both presets: 1,000,000
 # keyframes (the 32,085 real benchmark images, then synthetic ones), insertion, the map saved
 # while keyframes and queries keep coming, loaded cold and warm, and the answers compared with
 # those before the save. Needs about 15 GB of RAM and room for one map file (10+ GB) under
-# build/bench_map.
+# build/bench_map. gtbow bench-map fails when an answer changed through the save and load; the
+# section is written either way, and the target fails with either.
 bench-map: bench-data
-	@$(GTBOW) bench-map --dataset $(BENCH_DATA) --out build/bench_map
-	@python3 scripts/write_bench_map.py build/bench_map docs
+	@$(GTBOW) bench-map --dataset $(BENCH_DATA) --out build/bench_map; rc=$$?; \
+	  python3 scripts/write_bench_map.py build/bench_map docs || exit $$?; exit $$rc
 
 # Ten real floor photos (seven textured, three smooth concrete) as bounded regions, 320 x 240
 # images at 0.5 mm per pixel, days 0 and 180, every preset (about 5 minutes).
@@ -133,10 +146,19 @@ benchmark-authors: build
 	@bash scripts/benchmark_authors.sh $(GTBOW) build/benchmark/s4k build/benchmark/authors_eval
 
 # Issue 15's verification ablation on the real photographs and the 4,000-image asphalt (needs
-# make benchmark-real's dataset; about 5 minutes): docs/RESULTS.md, section "verification".
+# make benchmark-real's dataset; renders the 4,000-image asphalt when absent, about 4 minutes;
+# then about 5 minutes, 11 on a loaded machine):
+# docs/RESULTS.md, sections "verification" and "descriptors" (each preset beside its variant
+# without descriptors).
 benchmark-verification: build
 	@bash scripts/benchmark_verification.sh $(GTBOW) build/benchmark/real \
 	  build/benchmark/s4k build/benchmark/verification_eval
+
+# Issue 17's quantised keypoints: gtbow eval with and without --exact-keypoints on make
+# benchmark-real's dataset, every verified pose compared (about 25 s with make benchmark-real's
+# feature and vocabulary cache): docs/RESULTS.md, section "keypoints".
+benchmark-keypoints: build
+	@bash scripts/benchmark_keypoints.sh $(GTBOW) build/benchmark/real build/benchmark/keypoints_eval
 
 clean:
 	rm -rf build

@@ -8,8 +8,12 @@ the position error of the camera footprint at every drive image: RMSE and maximu
 No alignment is fitted: the map and odometry frames both start at the first true pose, so
 the errors are those a robot would see.
 
+With --max-rmse-mm and/or --min-improvement it also checks a claim and prints a verdict line:
+every --run's ATE RMSE below MAX_RMSE_MM, and odometry alone's at least MIN_IMPROVEMENT times
+every --run's; it exits 1 when the claim fails (after writing the table and the plot).
+
 Usage: backend_ate.py DATASET --start 1000 --rate 10 [--plot out.png] [--markdown out.md]
-                      --run LABEL=trajectory.csv ...
+                      [--max-rmse-mm 1.0] [--min-improvement 10] --run LABEL=trajectory.csv ...
 """
 import argparse
 import csv
@@ -60,7 +64,15 @@ def main():
     ap.add_argument("--rate", type=float, default=10.0, help="images per second of the bag")
     ap.add_argument("--plot", help="PNG of the trajectories over the ground truth")
     ap.add_argument("--markdown", help="also write the table here")
+    ap.add_argument("--max-rmse-mm", type=float,
+                    help="claim: every --run's ATE RMSE is below this (mm)")
+    ap.add_argument("--min-improvement", type=float,
+                    help="claim: odometry alone's ATE RMSE is at least this many times every "
+                    "--run's")
     a = ap.parse_args()
+    checking = a.max_rmse_mm is not None or a.min_improvement is not None
+    if checking and not a.trajectories:
+        sys.exit("--max-rmse-mm and --min-improvement need at least one --run")
 
     with open(os.path.join(a.dataset, "sequences", "drive.txt")) as f:
         names = [line.strip() for line in f if line.strip() and not line.startswith("#")]
@@ -79,11 +91,32 @@ def main():
              "no alignment fitted", "",
              "| trajectory | ATE RMSE (mm) | ATE max (mm) | final error (mm) |",
              "|---|---:|---:|---:|"]
+    rmses = []
     for label, est in runs:
         e = errors(truth, est)
         rmse = math.sqrt(sum(x * x for x in e) / len(e))
+        rmses.append(rmse)
         lines.append(f"| {label} | {1e3 * rmse:.2f} | {1e3 * max(e):.2f} | {1e3 * e[-1]:.2f} |")
     print("\n".join(lines))
+    failures = []
+    if checking:
+        odo_mm = 1e3 * rmses[0]
+        for (label, _), rmse in zip(runs[1:], rmses[1:]):
+            mm = 1e3 * rmse
+            if a.max_rmse_mm is not None and not mm < a.max_rmse_mm:
+                failures.append(f"{label}: ATE RMSE {mm:.2f} mm, not below {a.max_rmse_mm:g} mm")
+            if a.min_improvement is not None and not odo_mm >= a.min_improvement * mm:
+                failures.append(f"{label}: odometry alone's ATE RMSE {odo_mm:.2f} mm is not "
+                                f"{a.min_improvement:g} times its {mm:.2f} mm")
+        claim = " and ".join(
+            ([f"every backend's ATE RMSE below {a.max_rmse_mm:g} mm"]
+             if a.max_rmse_mm is not None else []) +
+            ([f"odometry alone's at least {a.min_improvement:g} times it"]
+             if a.min_improvement is not None else []))
+        if failures:
+            print(f"verdict: FAIL (claim: {claim}): " + "; ".join(failures))
+        else:
+            print(f"verdict: PASS (claim: {claim})")
     if a.markdown:
         with open(a.markdown, "w") as f:
             f.write("\n".join(lines) + "\n")
@@ -116,6 +149,8 @@ def main():
         fig.tight_layout()
         fig.savefig(a.plot, dpi=110)
         print(f"plot: {a.plot}")
+    if failures:
+        sys.exit(1)
 
 
 if __name__ == "__main__":

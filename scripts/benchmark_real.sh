@@ -6,6 +6,9 @@
 # model; the train split from eight other photos set aside for it. The per-surface tables go
 # into docs/RESULTS.md (section "real"), with the features ablation (config/ablation/features).
 # Then the low-contrast synthetic surfaces (smooth_concrete, epoxy) with the same presets.
+# write_real_results.py checks the ten surfaces, every split, the targets and the plain-ORB
+# contrast on smooth concrete (scripts/targets.py, REAL); it exits non-zero, and so does this
+# script, when an input is absent or a claim is missed.
 # Usage: benchmark_real.sh GTBOW PHOTO_DIR DATA_DIR OUT_DIR
 set -euo pipefail
 export PATH="/usr/bin:$PATH"

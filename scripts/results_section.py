@@ -2,7 +2,8 @@
 """Replaces one generated section of docs/RESULTS.md, keeping everything else.
 
 A section is the text between <!-- NAME:begin --> and <!-- NAME:end -->; it is appended when
-absent. Used by write_results.py (eval), write_scaling.py (scaling), write_soak.py (soak) and
+absent. Used by the write_*.py scripts (eval, scaling, bench_map, real, authors, verification,
+descriptors, keypoints, soak; their targets in targets.py, checked with report_check.py) and
 scripts/fuzz.sh (fuzz). Command line: results_section.py DOCS_DIR NAME FILE (FILE's text
 becomes the section body).
 """

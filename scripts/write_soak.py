@@ -1,24 +1,27 @@
 #!/usr/bin/python3
 """Puts a soak run (make soak: SOAK_DIR/soak.json from test/ros/soak.test) into docs/RESULTS.md.
 
-    write_soak.py SOAK_DIR DOCS_DIR
+    write_soak.py [--strict] SOAK_DIR DOCS_DIR
+    write_soak.py --check [--strict] SOAK_DIR
 
 Writes DOCS_DIR/results/soak.png (manager memory and keyframes over time) and the section
-between <!-- soak:begin --> and <!-- soak:end --> of DOCS_DIR/RESULTS.md.
+between <!-- soak:begin --> and <!-- soak:end --> of DOCS_DIR/RESULTS.md. Checked
+(scripts/targets.py, SOAK): no service call failed, and the manager's memory grew after the
+warm-up by no more than the bound (2 x the map's growth + 64 MB); exit 1 when not (after
+writing), 2 when soak.json lacks a figure.
 """
-import json
 import os
-import sys
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-
-from results_section import splice  # noqa: E402
+import targets as T
+from report_check import Check, load_json, parser, run
+from results_section import splice
 
 
 def plot(data, path):
+    import matplotlib  # here: --check needs no plot
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
     t = [s[0] / 60.0 for s in data["samples"]]
     rss = [s[1] for s in data["samples"]]
     kf = [s[2] for s in data["samples"]]
@@ -35,12 +38,36 @@ def plot(data, path):
     fig.savefig(path, dpi=110)
 
 
+def check(d, chk):
+    for k in ("seconds", "services", "rss_growth_mb", "allowed_growth_mb", "samples"):
+        chk.require(k in d, "soak.json: %s" % k)
+    chk.need(d["services"], "soak.json: service calls")
+    failed = sum(s["failures"] for s in d["services"])
+    chk.target(T.SOAK["failures"], failed, "")
+    bound = d["allowed_growth_mb"]
+    chk.target(T.SOAK["growth"], d["rss_growth_mb"] / bound if bound > 0 else None, "",
+               "%.1f MB of %.1f MB" % (d["rss_growth_mb"], bound))
+
+
 def main():
-    if len(sys.argv) != 3:
-        sys.exit(__doc__)
-    src, docs = sys.argv[1], sys.argv[2]
-    with open(os.path.join(src, "soak.json")) as f:
-        d = json.load(f)
+    p = parser(__doc__)
+    p.add_argument("src")
+    p.add_argument("docs", nargs="?")
+    a = p.parse_args()
+    if not a.check and not a.docs:
+        p.error("DOCS_DIR is needed unless --check")
+    chk = Check("soak", a.strict)
+
+    def go():
+        d = load_json(chk, os.path.join(a.src, "soak.json"))
+        check(d, chk)
+        if not a.check and not chk.missing:
+            write(d, a.docs)
+
+    run(chk, go)
+
+
+def write(d, docs):
     os.makedirs(os.path.join(docs, "results"), exist_ok=True)
     plot(d, os.path.join(docs, "results", "soak.png"))
     calls = sum(s["calls"] for s in d["services"])

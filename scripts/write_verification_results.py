@@ -1,56 +1,155 @@
 #!/usr/bin/python3
-"""Writes section "verification" of docs/RESULTS.md from gtbow eval results (issue 15).
+"""Writes sections "verification" and "descriptors" of docs/RESULTS.md from the gtbow eval runs
+of make benchmark-verification (issues 15 and 17), and checks their claims (scripts/targets.py:
+VERIFICATION, VERIFICATION_EXPECT).
 
-Usage: write_verification_results.py DOCS_DIR LABEL=results.json [LABEL=results.json ...]
-For each dataset, one row per preset: poses verified among every top-K candidate, the wrong ones
-(beyond 4.8 mm or 1.5 degrees), the wrong published ones (the pose localization gives),
-localization per query day and the median time of verification (pose estimation, one thread).
+    write_verification_results.py [--strict] DOCS_DIR real=RESULTS_JSON s4k=RESULTS_JSON
+    write_verification_results.py --check [--strict] real=RESULTS_JSON s4k=RESULTS_JSON
+
+"verification": for each dataset, one row per preset: poses verified among every top-K
+candidate, the wrong ones (beyond 4.8 mm or 1.5 degrees), the wrong published ones (the pose
+localization gives), localization per query day and the median time of verification (pose
+estimation, one thread). "descriptors": on the real photographs, each preset beside its variant
+that verifies without descriptors (a map saved with keep_descriptors false).
+
+Checked: both datasets and every preset of scripts/benchmark_verification.sh with both days
+(else exit 2); at most 1 wrong verified pose in 10,000 for high_accuracy + fast over both
+datasets, none for the presets, the consensus and the variants without descriptors, and R@100P
+>= 0.95 of the high-accuracy preset's verified closures on the real photographs' day-0 splits
+(weighted by their queries) (else exit 1; the sections are written first).
 """
-import json
-import sys
-
+import targets as T
+from report_check import Check, load_json, parser, run, table
 from results_section import splice
 
+E = T.VERIFICATION_EXPECT
 
-def rows(path):
-    r = json.load(open(path))
+
+def summarise(p):
+    verified = wrong = published_wrong = 0
+    days = {}
+    for s in p["splits"]:
+        b = s["backend"]
+        verified += b["verified_poses"]
+        wrong += b["wrong_verified_poses"]
+        loc = s["localization"]
+        published_wrong += loc["estimated"] - loc["correct"]
+        d = days.setdefault(s["day"], [0, 0])
+        d[0] += loc["correct"]
+        d[1] += s["queries"]
+    return verified, wrong, published_wrong, days
+
+
+def localized(days):
+    return " / ".join("%.1f%%" % (100.0 * c / n) for _, (c, n) in sorted(days.items()))
+
+
+def rows(res):
     out = []
-    for p in r["presets"]:
-        verified = wrong = published_wrong = 0
-        days = {}
-        for s in p["splits"]:
-            b = s["backend"]
-            verified += b["verified_poses"]
-            wrong += b["wrong_verified_poses"]
-            loc = s["localization"]
-            published_wrong += loc["estimated"] - loc["correct"]
-            d = days.setdefault(s["day"], [0, 0])
-            d[0] += loc["correct"]
-            d[1] += s["queries"]
-        pose_ms = p["timing"]["pose_estimation"]["median_ms"]
-        loc = " / ".join("%.1f%%" % (100.0 * c / n) for _, (c, n) in sorted(days.items()))
-        out.append("| `%s` | %d | %d | %d | %s | %.2f |" % (p["name"], verified, wrong,
-                                                         published_wrong, loc, pose_ms))
+    for p in res["presets"]:
+        verified, wrong, published_wrong, days = summarise(p)
+        out.append("| `%s` | %d | %d | %d | %s | %.2f |" % (p["name"], verified, wrong, published_wrong,
+                                                         localized(days), p["timing"]["pose_estimation"]["median_ms"]))
     return out
 
 
+def check(chk, data):
+    for key in E["datasets"]:
+        chk.need(key in data, "the dataset %s= (%s)" % (key, E["datasets"][key]))
+    by = {}
+    for key, res in data.items():
+        by[key] = {p["name"]: p for p in res["presets"]}
+        for name in E["presets"]:
+            if not chk.need(name in by[key], "%s: the preset %s" % (key, name)):
+                continue
+            days = {s["day"] for s in by[key][name]["splits"] if s["queries"] > 0}
+            for d in E["days"]:
+                chk.need(d in days, "%s, %s: a query split of day %d" % (key, name, d))
+    if chk.missing:
+        return []
+    rows = []
+    verified = wrong = 0
+    for key in data:
+        for name in ("high_accuracy", "fast"):
+            v, w, _, _ = summarise(by[key][name])
+            verified, wrong = verified + v, wrong + w
+    chk.need(verified > 0, "verified poses of high_accuracy and fast")
+    if verified:
+        rows.append(chk.target(T.VERIFICATION["wrong_rate"], wrong / float(verified), "",
+                               "%d of %d" % (wrong, verified)))
+    for key in data:
+        for name in T.VERIFICATION_ZERO_WRONG:
+            rows.append(chk.target(T.VERIFICATION["zero_wrong"], summarise(by[key][name])[1], "%s, %s" % (key, name)))
+    if "real" in data:
+        day0 = [s for s in by["real"]["high_accuracy"]["splits"] if s["day"] == 0]
+        n = sum(s["queries_with_relevant"] for s in day0)
+        chk.need(n > 0, "real, high_accuracy: day-0 queries")
+        if n:
+            r = sum(s["backend"]["recall_at_100_precision_verified"] * s["queries_with_relevant"] for s in day0) / n
+            worst = min(day0, key=lambda s: s["backend"]["recall_at_100_precision_verified"])
+            rows.append(chk.target(T.VERIFICATION["r100p_day0"], r, "real",
+                                   "%.3f (%d splits; worst %.3f, %s)" % (
+                                       r, len(day0), worst["backend"]["recall_at_100_precision_verified"], worst["name"])))
+    return rows
+
+
+def descriptors_section(real):
+    by = {p["name"]: p for p in real["presets"]}
+    lines = ["Generated by `make benchmark-verification` (scripts/write_verification_results.py) from its run "
+             "on the real floor photographs: each preset beside its variant without descriptors "
+             "(`config/ablation/verification/{ha,fast}_no_descriptors.yaml`: verification then uses the "
+             "preset's checks on word pairs, as a map saved with `keep_descriptors: false` does).", "",
+             "| preset | descriptors | localized day 0 / day 180 | verified poses | wrong |",
+             "| --- | --- | --- | --- | --- |"]
+    for kept, dropped in E["descriptor_pairs"]:
+        for name, what in ((kept, "kept"), (dropped, "dropped")):
+            verified, wrong, _, days = summarise(by[name])
+            lines.append("| %s | %s (`%s`) | %s | %s | %d |" % (kept, what, name, localized(days),
+                                                             "{:,}".format(verified), wrong))
+    return "\n".join(lines)
+
+
 def main():
-    if len(sys.argv) < 3:
-        sys.exit(__doc__)
-    body = ["Generated by `make benchmark-verification` (scripts/benchmark_verification.sh): "
-            "every preset of `config/ablation/verification/` and the presets, V = 20,000, K = 5. "
-            "\"verified\" counts every pose the top K candidates verify (with the consensus "
-            "checks applied when on); \"wrong\" those beyond 4.8 mm or 1.5 degrees; \"wrong "
-            "published\" the wrong poses among the answers localization gives (one per query). "
-            "Localization per query day (first day / oldest day); verification time: median per "
-            "query, all K candidates, one thread."]
-    for arg in sys.argv[2:]:
-        label, path = arg.split("=", 1)
-        body += ["", "**%s**" % label, "",
-                 "| preset | verified | wrong | wrong published | localized (days) | "
-                 "verification ms |", "| --- | --- | --- | --- | --- | --- |"]
-        body += rows(path)
-    print("wrote %s" % splice(sys.argv[1], "verification", "\n".join(body)))
+    p = parser(__doc__)
+    p.add_argument("inputs", nargs="+", help="[DOCS_DIR] KEY=RESULTS_JSON ...")
+    a = p.parse_args()
+    args = a.inputs
+    docs = None
+    if not a.check:
+        if len(args) < 2 or "=" in args[0]:
+            p.error("DOCS_DIR KEY=RESULTS_JSON ... (or --check KEY=RESULTS_JSON ...)")
+        docs, args = args[0], args[1:]
+    chk = Check("benchmark-verification", a.strict)
+
+    def go():
+        data = {}
+        for arg in args:
+            if "=" not in arg:
+                chk.require(False, "KEY=RESULTS_JSON, not %r" % arg)
+            key, path = arg.split("=", 1)
+            chk.need(key in E["datasets"], "a known dataset key (%s), not %r" % (", ".join(E["datasets"]), key))
+            data[key] = load_json(chk, path)
+        target_rows = check(chk, data)
+        if docs is None or chk.missing:
+            return
+        body = ["Generated by `make benchmark-verification` (scripts/benchmark_verification.sh): "
+                "every preset of `config/ablation/verification/` and the presets, V = 20,000, K = 5. "
+                "\"verified\" counts every pose the top K candidates verify (with the consensus "
+                "checks applied when on); \"wrong\" those beyond 4.8 mm or 1.5 degrees; \"wrong "
+                "published\" the wrong poses among the answers localization gives (one per query). "
+                "Localization per query day (first day / oldest day); verification time: median per "
+                "query, all K candidates, one thread."]
+        for key, label in E["datasets"].items():
+            body += ["", "**%s**" % label, "",
+                     "| preset | verified | wrong | wrong published | localized (days) | "
+                     "verification ms |", "| --- | --- | --- | --- | --- | --- |"]
+            body += rows(data[key])
+        body += ["", "Checked (scripts/write_verification_results.py; targets in scripts/targets.py):", ""]
+        body += table(target_rows)
+        print("wrote %s" % splice(docs, "verification", "\n".join(body)))
+        print("wrote %s" % splice(docs, "descriptors", descriptors_section(data["real"])))
+
+    run(chk, go)
 
 
 if __name__ == "__main__":

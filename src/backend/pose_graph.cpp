@@ -237,12 +237,14 @@ ClosureState PoseGraph::AddClosure(const Closure& closure) {
   if (!SqrtInformation(ToMatrix(s.c.covariance), &unused)) {
     throw std::invalid_argument("closure covariance is not symmetric positive definite");
   }
+  s.match_dist = Interpolate(closure.match_ns).dist;
+  s.query_dist = Interpolate(closure.query_ns).dist;
   if (closure.match_ns == closure.query_ns) {
+    s.state = ClosureState::kRejected;
+    closures_.push_back(s);  // kept for its id: never a partner, never an edge
     ++rejected_;
     return ClosureState::kRejected;
   }
-  s.match_dist = Interpolate(closure.match_ns).dist;
-  s.query_dist = Interpolate(closure.query_ns).dist;
   closures_.push_back(s);
   StoredClosure& added = closures_.back();
   ++pending_;  // until accepted
@@ -262,6 +264,14 @@ ClosureState PoseGraph::AddClosure(const Closure& closure) {
     if (other.state == ClosureState::kPending) Accept(&other);
   }
   return added.state;
+}
+
+ClosureState PoseGraph::State(size_t id) const {
+  if (id >= closures_.size()) {
+    throw std::out_of_range("no closure " + std::to_string(id) + " (" +
+                            std::to_string(closures_.size()) + " added)");
+  }
+  return closures_[id].state;
 }
 
 SolveReport PoseGraph::Optimize() {

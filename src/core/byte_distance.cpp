@@ -6,6 +6,9 @@
 #include <cstring>
 #include <stdexcept>
 
+#include "ground_texture_bow/core/simd.h"
+#include "simd_dispatch.h"
+
 #if defined(__x86_64__) && defined(__GNUC__)
 #include <immintrin.h>
 #define GTBOW_HAVE_AVX2_KERNEL 1
@@ -176,8 +179,10 @@ bool SimdKernelSupported(SimdKernel kernel) {
       return true;
 #ifdef GTBOW_HAVE_AVX2_KERNEL
     case SimdKernel::kAvx2:
+      __builtin_cpu_init();
       return __builtin_cpu_supports("avx2");
     case SimdKernel::kAvx512:
+      __builtin_cpu_init();
       return __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512bw") &&
              __builtin_cpu_supports("avx512vnni");
 #endif
@@ -202,22 +207,44 @@ int PackedSquaredDistancesBelowUsing(SimdKernel kernel, const int16_t* pq, const
 
 namespace {
 
-// The widest kernel the CPU runs; GTBOW_SIMD=avx2 or GTBOW_SIMD=portable caps it (for
-// measuring the kernels against each other).
-SimdKernel BestKernel() {
-  const char* cap = std::getenv("GTBOW_SIMD");
-  const bool portable = cap != nullptr && std::strcmp(cap, "portable") == 0;
-  const bool avx2 = cap != nullptr && std::strcmp(cap, "avx2") == 0;
-  if (!portable && !avx2 && SimdKernelSupported(SimdKernel::kAvx512)) return SimdKernel::kAvx512;
-  if (!portable && SimdKernelSupported(SimdKernel::kAvx2)) return SimdKernel::kAvx2;
+// The widest kernel the CPU runs that GTBOW_SIMD allows (simd_dispatch.h: these kernels rank
+// portable < avx2 < avx512; GTBOW_SIMD=popcnt allows the portable one only).
+SimdKernel ChooseKernel() {
+  const int allowed = SimdRankAllowed();
+#ifdef GTBOW_HAVE_AVX2_KERNEL
+  if (kSimdRankAvx512 <= allowed && SimdKernelSupported(SimdKernel::kAvx512))
+    return SimdKernel::kAvx512;
+  if (kSimdRankAvx2 <= allowed && SimdKernelSupported(SimdKernel::kAvx2)) return SimdKernel::kAvx2;
+#else
+  (void)allowed;
+#endif
   return SimdKernel::kPortable;
 }
 
 }  // namespace
 
+const char* SimdKernelName(SimdKernel kernel) {
+  switch (kernel) {
+    case SimdKernel::kPortable:
+      return "portable";
+    case SimdKernel::kAvx2:
+      return "avx2";
+    case SimdKernel::kAvx512:
+      return "avx512";
+  }
+  return "unknown";
+}
+
+SimdKernel ActiveSimdKernel() {
+  static const SimdKernel kernel = ChooseKernel();
+  return kernel;
+}
+
+const char* ActiveByteDistanceKernelName() { return SimdKernelName(ActiveSimdKernel()); }
+
 int PackedSquaredDistancesBelow(const int16_t* pq, const int16_t* blocks, int n, int d,
                                 int32_t threshold, uint32_t* index, int32_t* distance) {
-  static const SimdKernel kernel = BestKernel();
+  static const SimdKernel kernel = ActiveSimdKernel();
   return PackedSquaredDistancesBelowUsing(kernel, pq, blocks, n, d, threshold, index, distance);
 }
 

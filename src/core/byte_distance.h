@@ -1,6 +1,6 @@
 // Squared L2 distances between byte vectors (ORB descriptors taken as 32 numbers), in exact
-// integer arithmetic: an AVX2 kernel where the CPU has it, a portable loop otherwise. Both give
-// identical results. Private to the core.
+// integer arithmetic: AVX2 and AVX-512 VNNI kernels where the CPU has them, a portable loop
+// otherwise. All give identical results. Private to the core.
 #pragma once
 
 #include <cstdint>
@@ -23,9 +23,12 @@ int PackedSquaredDistancesBelow(const int16_t* packed_query, const int16_t* bloc
                                 int32_t threshold, uint32_t* index, int32_t* distance);
 
 // The kernels by name, so that tests can run each one the CPU supports. The dispatched call
-// above uses the widest; the environment variable GTBOW_SIMD=avx2 or GTBOW_SIMD=portable caps it.
+// above uses ActiveSimdKernel(): the widest the CPU runs, capped by the environment variable
+// GTBOW_SIMD (simd_dispatch.h: portable, popcnt (= portable here), avx2, avx512).
 enum class SimdKernel { kPortable, kAvx2, kAvx512 };
+const char* SimdKernelName(SimdKernel kernel);  // "portable", "avx2", "avx512"
 bool SimdKernelSupported(SimdKernel kernel);
+SimdKernel ActiveSimdKernel();
 int PackedSquaredDistancesBelowUsing(SimdKernel kernel, const int16_t* packed_query,
                                      const int16_t* blocks, int n, int d, int32_t threshold,
                                      uint32_t* index, int32_t* distance);

@@ -4,11 +4,21 @@
 #include <cstdlib>
 #include <cstring>
 #include <stdexcept>
+#include <string>
+
+#include "ground_texture_bow/core/simd.h"
+#include "simd_dispatch.h"
 
 #if defined(__x86_64__) && defined(__GNUC__)
 #include <immintrin.h>
-#define GTBOW_HAVE_AVX512_POPCNT_KERNEL 1
+#define GTBOW_HAVE_X86_HAMMING_KERNELS 1
+#elif defined(__aarch64__) && defined(__GNUC__)
+#include <arm_neon.h>
+#define GTBOW_HAVE_NEON_HAMMING_KERNEL 1
 #endif
+
+// Inlined into each kernel's entry points, so that each is compiled for that kernel's target.
+#define GTBOW_KERNEL_INLINE inline __attribute__((always_inline))
 
 namespace gtbow {
 
@@ -31,39 +41,112 @@ void PackBinaryRows(const uint8_t* rows, int n, int bytes, std::vector<uint64_t>
   }
 }
 
-uint32_t HammingDistance(const uint8_t* a, const uint8_t* b, int bytes) {
+namespace {
+
+// ---------------------------------------------------------------------------------------------
+// The scalar loops, over a 64-bit popcount `Pop`: the portable kernel's (a bit-twiddling
+// count) and the popcnt kernel's (the instruction).
+
+// The sideways sum of Hacker's Delight (5-2): bits added in fields of 2, 4 and 8 bits, the 8
+// bytes then summed by one multiplication. Plain C++: GCC turns it into the instruction only
+// where the target has one, and never into a call of libgcc's __popcountdi2.
+struct BitTwiddlingPopcount {
+  static GTBOW_KERNEL_INLINE uint32_t Count(uint64_t x) {
+    x = x - ((x >> 1) & 0x5555555555555555ULL);
+    x = (x & 0x3333333333333333ULL) + ((x >> 2) & 0x3333333333333333ULL);
+    x = (x + (x >> 4)) & 0x0f0f0f0f0f0f0f0fULL;
+    return static_cast<uint32_t>((x * 0x0101010101010101ULL) >> 56);
+  }
+};
+
+#ifdef GTBOW_HAVE_X86_HAMMING_KERNELS
+// The POPCNT instruction: only ever inlined into functions compiled with target("popcnt").
+struct PopcntInstruction {
+  static GTBOW_KERNEL_INLINE uint32_t Count(uint64_t x) {
+    return static_cast<uint32_t>(__builtin_popcountll(x));
+  }
+};
+#endif
+
+GTBOW_KERNEL_INLINE uint64_t Load64(const uint8_t* p) {
+  uint64_t x;
+  std::memcpy(&x, p, 8);
+  return x;
+}
+
+// The last `n` < 8 bytes of a descriptor, zero-extended to 64 bits.
+GTBOW_KERNEL_INLINE uint64_t LoadTail(const uint8_t* p, int n) {
+  uint64_t x = 0;
+  std::memcpy(&x, p, static_cast<size_t>(n));
+  return x;
+}
+
+template <class Pop>
+GTBOW_KERNEL_INLINE uint32_t PairLoop(const uint8_t* a, const uint8_t* b, int bytes) {
   uint32_t s = 0;
   int k = 0;
-  for (; k + 8 <= bytes; k += 8) {
-    uint64_t x, y;
-    std::memcpy(&x, a + k, 8);
-    std::memcpy(&y, b + k, 8);
-    s += static_cast<uint32_t>(__builtin_popcountll(x ^ y));
-  }
-  for (; k < bytes; ++k)
-    s += static_cast<uint32_t>(__builtin_popcount(static_cast<unsigned>(a[k] ^ b[k])));
+  for (; k + 8 <= bytes; k += 8) s += Pop::Count(Load64(a + k) ^ Load64(b + k));
+  if (k < bytes) s += Pop::Count(LoadTail(a + k, bytes - k) ^ LoadTail(b + k, bytes - k));
   return s;
 }
 
-namespace {
+// The distance of a 32-byte row `r` to the query chunks q0..q3 (ORB). (A function, not a
+// lambda: a lambda's body is not compiled for the target of the function it is written in.)
+template <class Pop>
+GTBOW_KERNEL_INLINE uint32_t Distance32(uint64_t q0, uint64_t q1, uint64_t q2, uint64_t q3,
+                                        const uint8_t* r) {
+  return Pop::Count(q0 ^ Load64(r)) + Pop::Count(q1 ^ Load64(r + 8)) +
+         Pop::Count(q2 ^ Load64(r + 16)) + Pop::Count(q3 ^ Load64(r + 24));
+}
 
-// The distance of packed row `i` to `q`, one 64-bit popcount per chunk.
-uint32_t PortableDistance(const uint64_t* q, const uint64_t* blocks, int i, int chunks) {
+template <class Pop>
+GTBOW_KERNEL_INLINE int NearestLoop(const uint8_t* q, const uint8_t* rows, size_t stride, int n,
+                                    int bytes, uint32_t* distance) {
+  if (n <= 0) return -1;
+  int arg = 0;
+  uint32_t best;
+  if (bytes == 32) {  // ORB: the query's four chunks stay in registers
+    const uint64_t q0 = Load64(q), q1 = Load64(q + 8), q2 = Load64(q + 16), q3 = Load64(q + 24);
+    best = Distance32<Pop>(q0, q1, q2, q3, rows);
+    for (int i = 1; i < n; ++i) {
+      const uint32_t d = Distance32<Pop>(q0, q1, q2, q3, rows + static_cast<size_t>(i) * stride);
+      if (d < best) {
+        best = d;
+        arg = i;
+      }
+    }
+  } else {
+    best = PairLoop<Pop>(q, rows, bytes);
+    for (int i = 1; i < n; ++i) {
+      const uint32_t d = PairLoop<Pop>(q, rows + static_cast<size_t>(i) * stride, bytes);
+      if (d < best) {
+        best = d;
+        arg = i;
+      }
+    }
+  }
+  *distance = best;
+  return arg;
+}
+
+// The distance of packed row `i` to `q`, one 64-bit count per chunk.
+template <class Pop>
+GTBOW_KERNEL_INLINE uint32_t PackedRowDistance(const uint64_t* q, const uint64_t* blocks, int i,
+                                               int chunks) {
   const uint64_t* blk =
       blocks + static_cast<size_t>(i / kBinaryBlockRows) * kBinaryBlockRows * chunks;
   const int lane = i % kBinaryBlockRows;
   uint32_t s = 0;
-  for (int k = 0; k < chunks; ++k) {
-    s += static_cast<uint32_t>(__builtin_popcountll(q[k] ^ blk[k * kBinaryBlockRows + lane]));
-  }
+  for (int k = 0; k < chunks; ++k) s += Pop::Count(q[k] ^ blk[k * kBinaryBlockRows + lane]);
   return s;
 }
 
-int PortableBelow(const uint64_t* q, const uint64_t* blocks, int n, int chunks, uint32_t threshold,
-                  uint32_t* index, uint32_t* distance) {
+template <class Pop>
+GTBOW_KERNEL_INLINE int BelowLoop(const uint64_t* q, const uint64_t* blocks, int n, int chunks,
+                                  uint32_t threshold, uint32_t* index, uint32_t* distance) {
   int m = 0;
   for (int i = 0; i < n; ++i) {
-    const uint32_t s = PortableDistance(q, blocks, i, chunks);
+    const uint32_t s = PackedRowDistance<Pop>(q, blocks, i, chunks);
     if (s < threshold) {
       index[m] = static_cast<uint32_t>(i);
       distance[m++] = s;
@@ -72,7 +155,151 @@ int PortableBelow(const uint64_t* q, const uint64_t* blocks, int n, int chunks, 
   return m;
 }
 
-#ifdef GTBOW_HAVE_AVX512_POPCNT_KERNEL
+template <class Pop>
+GTBOW_KERNEL_INLINE void AllLoop(const uint64_t* q, const uint64_t* blocks, int n, int chunks,
+                                 uint32_t* out) {
+  for (int i = 0; i < n; ++i) out[i] = PackedRowDistance<Pop>(q, blocks, i, chunks);
+}
+
+// The portable kernel: the fallback where the CPU has none of the instructions below (and
+// the reference the others are tested against).
+int PortableBelow(const uint64_t* q, const uint64_t* blocks, int n, int chunks, uint32_t threshold,
+                  uint32_t* index, uint32_t* distance) {
+  return BelowLoop<BitTwiddlingPopcount>(q, blocks, n, chunks, threshold, index, distance);
+}
+void PortableAll(const uint64_t* q, const uint64_t* blocks, int n, int chunks, uint32_t* out) {
+  AllLoop<BitTwiddlingPopcount>(q, blocks, n, chunks, out);
+}
+uint32_t PortablePair(const uint8_t* a, const uint8_t* b, int bytes) {
+  return PairLoop<BitTwiddlingPopcount>(a, b, bytes);
+}
+int PortableNearest(const uint8_t* q, const uint8_t* rows, size_t stride, int n, int bytes,
+                    uint32_t* distance) {
+  return NearestLoop<BitTwiddlingPopcount>(q, rows, stride, n, bytes, distance);
+}
+
+#ifdef GTBOW_HAVE_X86_HAMMING_KERNELS
+// ---------------------------------------------------------------------------------------------
+// The popcnt kernel: the same loops, compiled for the POPCNT instruction. The avx2 and avx512
+// kernels use its pair and nearest-row functions (one descriptor at a time is four POPCNTs).
+__attribute__((target("popcnt"))) int PopcntBelow(const uint64_t* q, const uint64_t* blocks, int n,
+                                                  int chunks, uint32_t threshold, uint32_t* index,
+                                                  uint32_t* distance) {
+  return BelowLoop<PopcntInstruction>(q, blocks, n, chunks, threshold, index, distance);
+}
+__attribute__((target("popcnt"))) void PopcntAll(const uint64_t* q, const uint64_t* blocks, int n,
+                                                 int chunks, uint32_t* out) {
+  AllLoop<PopcntInstruction>(q, blocks, n, chunks, out);
+}
+__attribute__((target("popcnt"))) uint32_t PopcntPair(const uint8_t* a, const uint8_t* b,
+                                                      int bytes) {
+  return PairLoop<PopcntInstruction>(a, b, bytes);
+}
+__attribute__((target("popcnt"))) int PopcntNearest(const uint8_t* q, const uint8_t* rows,
+                                                    size_t stride, int n, int bytes,
+                                                    uint32_t* distance) {
+  return NearestLoop<PopcntInstruction>(q, rows, stride, n, bytes, distance);
+}
+
+// ---------------------------------------------------------------------------------------------
+// The avx2 kernel (packed scans): each byte's bits counted by two lookups of a 16-entry table
+// (vpshufb, one per nibble), the byte counts of up to 31 chunks added as bytes (at most 8 each,
+// so at most 248), then summed into each row's 64-bit lane by vpsadbw. A register holds 4 rows.
+__attribute__((target("avx2"), always_inline)) inline __m256i Avx2ByteCounts(__m256i v) {
+  const __m256i table = _mm256_setr_epi8(0, 1, 1, 2, 1, 2, 2, 3, 1, 2, 2, 3, 2, 3, 3, 4, 0, 1, 1, 2,
+                                         1, 2, 2, 3, 1, 2, 2, 3, 2, 3, 3, 4);
+  const __m256i low = _mm256_set1_epi8(0x0f);
+  const __m256i lo = _mm256_and_si256(v, low);
+  const __m256i hi = _mm256_and_si256(_mm256_srli_epi16(v, 4), low);
+  return _mm256_add_epi8(_mm256_shuffle_epi8(table, lo), _mm256_shuffle_epi8(table, hi));
+}
+
+// The distances of the 8 rows of block `b` to `q`: rows 0-3 in *r0, rows 4-7 in *r1.
+__attribute__((target("avx2"), always_inline)) inline void Avx2BlockDistances(
+    const uint64_t* q, const uint64_t* b, int chunks, __m256i* r0, __m256i* r1) {
+  const __m256i zero = _mm256_setzero_si256();
+  __m256i s0 = zero, s1 = zero;
+  for (int k = 0; k < chunks;) {
+    const int end = std::min(chunks, k + 31);
+    __m256i c0 = zero, c1 = zero;
+    for (; k < end; ++k) {
+      const __m256i qk = _mm256_set1_epi64x(static_cast<long long>(q[k]));
+      const __m256i x0 =
+          _mm256_xor_si256(_mm256_loadu_si256(reinterpret_cast<const __m256i*>(b + 8 * k)), qk);
+      const __m256i x1 =
+          _mm256_xor_si256(_mm256_loadu_si256(reinterpret_cast<const __m256i*>(b + 8 * k + 4)), qk);
+      c0 = _mm256_add_epi8(c0, Avx2ByteCounts(x0));
+      c1 = _mm256_add_epi8(c1, Avx2ByteCounts(x1));
+    }
+    s0 = _mm256_add_epi64(s0, _mm256_sad_epu8(c0, zero));
+    s1 = _mm256_add_epi64(s1, _mm256_sad_epu8(c1, zero));
+  }
+  *r0 = s0;
+  *r1 = s1;
+}
+
+// Appends the rows `first` .. `first` + 3 (of `n`) whose distance in `v` is below `t` (both
+// non-negative, so the signed 64-bit comparison is exact).
+__attribute__((target("avx2"), always_inline)) inline void Avx2Emit(__m256i v, __m256i t, int first,
+                                                                    int n, uint32_t* index,
+                                                                    uint32_t* distance, int* m) {
+  unsigned mask =
+      static_cast<unsigned>(_mm256_movemask_pd(_mm256_castsi256_pd(_mm256_cmpgt_epi64(t, v))));
+  const int valid = n - first;
+  if (valid < 4) mask &= (1u << std::max(valid, 0)) - 1;  // padding rows of the last block
+  if (mask == 0) return;
+  alignas(32) uint64_t s[4];
+  _mm256_store_si256(reinterpret_cast<__m256i*>(s), v);
+  while (mask != 0) {
+    const int j = __builtin_ctz(mask);
+    mask &= mask - 1;
+    index[*m] = static_cast<uint32_t>(first + j);
+    distance[(*m)++] = static_cast<uint32_t>(s[j]);
+  }
+}
+
+__attribute__((target("avx2"))) int Avx2Below(const uint64_t* q, const uint64_t* blocks, int n,
+                                              int chunks, uint32_t threshold, uint32_t* index,
+                                              uint32_t* distance) {
+  const int nblocks = (n + kBinaryBlockRows - 1) / kBinaryBlockRows;
+  const size_t block = static_cast<size_t>(kBinaryBlockRows) * chunks;
+  const __m256i t = _mm256_set1_epi64x(static_cast<long long>(threshold));
+  int m = 0;
+  for (int bi = 0; bi < nblocks; ++bi) {
+    __m256i r0, r1;
+    if (chunks == 4) {  // ORB: the chunk loop unrolled
+      Avx2BlockDistances(q, blocks + bi * block, 4, &r0, &r1);
+    } else {
+      Avx2BlockDistances(q, blocks + bi * block, chunks, &r0, &r1);
+    }
+    const int first = bi * kBinaryBlockRows;
+    Avx2Emit(r0, t, first, n, index, distance, &m);
+    Avx2Emit(r1, t, first + 4, n, index, distance, &m);
+  }
+  return m;
+}
+
+__attribute__((target("avx2"))) void Avx2All(const uint64_t* q, const uint64_t* blocks, int n,
+                                             int chunks, uint32_t* out) {
+  const int nblocks = (n + kBinaryBlockRows - 1) / kBinaryBlockRows;
+  const size_t block = static_cast<size_t>(kBinaryBlockRows) * chunks;
+  alignas(32) uint64_t lanes[kBinaryBlockRows];
+  for (int bi = 0; bi < nblocks; ++bi) {
+    __m256i r0, r1;
+    if (chunks == 4) {
+      Avx2BlockDistances(q, blocks + bi * block, 4, &r0, &r1);
+    } else {
+      Avx2BlockDistances(q, blocks + bi * block, chunks, &r0, &r1);
+    }
+    _mm256_store_si256(reinterpret_cast<__m256i*>(lanes), r0);
+    _mm256_store_si256(reinterpret_cast<__m256i*>(lanes + 4), r1);
+    const int first = bi * kBinaryBlockRows, valid = std::min(kBinaryBlockRows, n - first);
+    for (int j = 0; j < valid; ++j) out[first + j] = static_cast<uint32_t>(lanes[j]);
+  }
+}
+
+// ---------------------------------------------------------------------------------------------
+// The avx512 kernel (packed scans): AVX-512 VPOPCNTDQ, a block of 8 rows per register.
 // Appends the rows of block `first` whose distance in `v` is below the threshold `t`.
 __attribute__((target("avx512f,avx512vpopcntdq"), always_inline)) inline void Emit(
     __m512i v, __m512i t, int first, int n, uint32_t* index, uint32_t* distance, int* m) {
@@ -136,9 +363,6 @@ __attribute__((target("avx512f,avx512vpopcntdq"))) int Avx512Below(const uint64_
   }
   return m;
 }
-#endif
-
-#ifdef GTBOW_HAVE_AVX512_POPCNT_KERNEL
 __attribute__((target("avx512f,avx512vpopcntdq"))) void Avx512All(const uint64_t* q,
                                                                   const uint64_t* blocks, int n,
                                                                   int chunks, uint32_t* out) {
@@ -162,52 +386,299 @@ __attribute__((target("avx512f,avx512vpopcntdq"))) void Avx512All(const uint64_t
 }
 #endif
 
-HammingKernel BestKernel() {
-  const char* cap = std::getenv("GTBOW_SIMD");
-  const bool capped =
-      cap != nullptr && (std::strcmp(cap, "portable") == 0 || std::strcmp(cap, "avx2") == 0);
-  if (!capped && HammingKernelSupported(HammingKernel::kAvx512)) return HammingKernel::kAvx512;
-  return HammingKernel::kPortable;
+#ifdef GTBOW_HAVE_NEON_HAMMING_KERNEL
+// ---------------------------------------------------------------------------------------------
+// The neon kernel: vcnt counts the bits of each byte; the byte counts of up to 31 chunks (at
+// most 8 each) are added as bytes, then widened pairwise (vpaddl) into 64-bit lanes. A block
+// of 8 packed rows takes 4 registers of 2 rows.
+GTBOW_KERNEL_INLINE void NeonBlockDistances(const uint64_t* q, const uint64_t* b, int chunks,
+                                            uint64_t* lanes) {
+  uint64x2_t s[4] = {vdupq_n_u64(0), vdupq_n_u64(0), vdupq_n_u64(0), vdupq_n_u64(0)};
+  for (int k = 0; k < chunks;) {
+    const int end = std::min(chunks, k + 31);
+    uint8x16_t c[4] = {vdupq_n_u8(0), vdupq_n_u8(0), vdupq_n_u8(0), vdupq_n_u8(0)};
+    for (; k < end; ++k) {
+      const uint64x2_t qk = vdupq_n_u64(q[k]);
+      for (int j = 0; j < 4; ++j) {
+        const uint64x2_t x = veorq_u64(vld1q_u64(b + 8 * k + 2 * j), qk);
+        c[j] = vaddq_u8(c[j], vcntq_u8(vreinterpretq_u8_u64(x)));
+      }
+    }
+    for (int j = 0; j < 4; ++j) s[j] = vaddq_u64(s[j], vpaddlq_u32(vpaddlq_u16(vpaddlq_u8(c[j]))));
+  }
+  for (int j = 0; j < 4; ++j) vst1q_u64(lanes + 2 * j, s[j]);
+}
+
+int NeonBelow(const uint64_t* q, const uint64_t* blocks, int n, int chunks, uint32_t threshold,
+              uint32_t* index, uint32_t* distance) {
+  const int nblocks = (n + kBinaryBlockRows - 1) / kBinaryBlockRows;
+  const size_t block = static_cast<size_t>(kBinaryBlockRows) * chunks;
+  uint64_t lanes[kBinaryBlockRows];
+  int m = 0;
+  for (int bi = 0; bi < nblocks; ++bi) {
+    if (chunks == 4) {  // ORB: the chunk loop unrolled
+      NeonBlockDistances(q, blocks + bi * block, 4, lanes);
+    } else {
+      NeonBlockDistances(q, blocks + bi * block, chunks, lanes);
+    }
+    const int first = bi * kBinaryBlockRows, valid = std::min(kBinaryBlockRows, n - first);
+    for (int j = 0; j < valid; ++j) {
+      if (lanes[j] < threshold) {
+        index[m] = static_cast<uint32_t>(first + j);
+        distance[m++] = static_cast<uint32_t>(lanes[j]);
+      }
+    }
+  }
+  return m;
+}
+
+void NeonAll(const uint64_t* q, const uint64_t* blocks, int n, int chunks, uint32_t* out) {
+  const int nblocks = (n + kBinaryBlockRows - 1) / kBinaryBlockRows;
+  const size_t block = static_cast<size_t>(kBinaryBlockRows) * chunks;
+  uint64_t lanes[kBinaryBlockRows];
+  for (int bi = 0; bi < nblocks; ++bi) {
+    if (chunks == 4) {
+      NeonBlockDistances(q, blocks + bi * block, 4, lanes);
+    } else {
+      NeonBlockDistances(q, blocks + bi * block, chunks, lanes);
+    }
+    const int first = bi * kBinaryBlockRows, valid = std::min(kBinaryBlockRows, n - first);
+    for (int j = 0; j < valid; ++j) out[first + j] = static_cast<uint32_t>(lanes[j]);
+  }
+}
+
+// Two descriptors: 16 bytes per vcnt, byte counts widened into 16-bit lanes (vpadal, at most 16
+// per lane and step: flushed every 2048 steps), then 8 bytes and the last < 8 bytes.
+GTBOW_KERNEL_INLINE uint32_t NeonPairInline(const uint8_t* a, const uint8_t* b, int bytes) {
+  uint32_t s = 0;
+  int k = 0;
+  while (k + 16 <= bytes) {
+    uint16x8_t acc = vdupq_n_u16(0);
+    for (int steps = 0; steps < 2048 && k + 16 <= bytes; ++steps, k += 16)
+      acc = vpadalq_u8(acc, vcntq_u8(veorq_u8(vld1q_u8(a + k), vld1q_u8(b + k))));
+    s += vaddlvq_u16(acc);
+  }
+  if (k + 8 <= bytes) {
+    s += vaddv_u8(vcnt_u8(veor_u8(vld1_u8(a + k), vld1_u8(b + k))));
+    k += 8;
+  }
+  if (k < bytes) {
+    const uint64_t x = LoadTail(a + k, bytes - k) ^ LoadTail(b + k, bytes - k);
+    s += vaddv_u8(vcnt_u8(vcreate_u8(x)));
+  }
+  return s;
+}
+
+// One 32-byte row: 32 byte counts of at most 8, their pairwise sums at most 16.
+GTBOW_KERNEL_INLINE uint32_t NeonDistance32(uint8x16_t q0, uint8x16_t q1, const uint8_t* r) {
+  return vaddlvq_u8(
+      vaddq_u8(vcntq_u8(veorq_u8(q0, vld1q_u8(r))), vcntq_u8(veorq_u8(q1, vld1q_u8(r + 16)))));
+}
+
+uint32_t NeonPair(const uint8_t* a, const uint8_t* b, int bytes) {
+  return NeonPairInline(a, b, bytes);
+}
+
+int NeonNearest(const uint8_t* q, const uint8_t* rows, size_t stride, int n, int bytes,
+                uint32_t* distance) {
+  if (n <= 0) return -1;
+  int arg = 0;
+  uint32_t best;
+  if (bytes == 32) {  // ORB: the query stays in two registers
+    const uint8x16_t q0 = vld1q_u8(q), q1 = vld1q_u8(q + 16);
+    best = NeonDistance32(q0, q1, rows);
+    for (int i = 1; i < n; ++i) {
+      const uint32_t d = NeonDistance32(q0, q1, rows + static_cast<size_t>(i) * stride);
+      if (d < best) {
+        best = d;
+        arg = i;
+      }
+    }
+  } else {
+    best = NeonPairInline(q, rows, bytes);
+    for (int i = 1; i < n; ++i) {
+      const uint32_t d = NeonPairInline(q, rows + static_cast<size_t>(i) * stride, bytes);
+      if (d < best) {
+        best = d;
+        arg = i;
+      }
+    }
+  }
+  *distance = best;
+  return arg;
+}
+#endif
+
+// ---------------------------------------------------------------------------------------------
+// Dispatch.
+
+struct Kernels {
+  int (*below)(const uint64_t*, const uint64_t*, int, int, uint32_t, uint32_t*, uint32_t*);
+  void (*all)(const uint64_t*, const uint64_t*, int, int, uint32_t*);
+  uint32_t (*pair)(const uint8_t*, const uint8_t*, int);
+  int (*nearest)(const uint8_t*, const uint8_t*, size_t, int, int, uint32_t*);
+};
+
+constexpr Kernels kPortableKernels{PortableBelow, PortableAll, PortablePair, PortableNearest};
+#ifdef GTBOW_HAVE_X86_HAMMING_KERNELS
+constexpr Kernels kPopcntKernels{PopcntBelow, PopcntAll, PopcntPair, PopcntNearest};
+constexpr Kernels kAvx2Kernels{Avx2Below, Avx2All, PopcntPair, PopcntNearest};
+constexpr Kernels kAvx512Kernels{Avx512Below, Avx512All, PopcntPair, PopcntNearest};
+#endif
+#ifdef GTBOW_HAVE_NEON_HAMMING_KERNEL
+constexpr Kernels kNeonKernels{NeonBelow, NeonAll, NeonPair, NeonNearest};
+#endif
+
+// The kernel's rank in simd_dispatch.h's order; -1 for none of this architecture.
+int RankOf(HammingKernel kernel) {
+  switch (kernel) {
+    case HammingKernel::kPortable:
+      return kSimdRankPortable;
+#ifdef GTBOW_HAVE_X86_HAMMING_KERNELS
+    case HammingKernel::kPopcnt:
+      return kSimdRankPopcnt;
+    case HammingKernel::kAvx2:
+      return kSimdRankAvx2;
+    case HammingKernel::kAvx512:
+      return kSimdRankAvx512;
+#endif
+#ifdef GTBOW_HAVE_NEON_HAMMING_KERNEL
+    case HammingKernel::kNeon:
+      return kSimdRankNeon;
+#endif
+    default:
+      return -1;
+  }
+}
+
+const Kernels& KernelsOf(HammingKernel kernel) {
+  if (!HammingKernelSupported(kernel)) {
+    throw std::invalid_argument(std::string("Hamming kernel ") + HammingKernelName(kernel) +
+                                " is not supported by this build and CPU");
+  }
+  switch (kernel) {
+#ifdef GTBOW_HAVE_X86_HAMMING_KERNELS
+    case HammingKernel::kPopcnt:
+      return kPopcntKernels;
+    case HammingKernel::kAvx2:
+      return kAvx2Kernels;
+    case HammingKernel::kAvx512:
+      return kAvx512Kernels;
+#endif
+#ifdef GTBOW_HAVE_NEON_HAMMING_KERNEL
+    case HammingKernel::kNeon:
+      return kNeonKernels;
+#endif
+    default:
+      return kPortableKernels;
+  }
+}
+
+HammingKernel ChooseKernel() {
+  const int allowed = SimdRankAllowed();
+  HammingKernel best = HammingKernel::kPortable;
+  int best_rank = kSimdRankPortable;
+  for (HammingKernel k : kAllHammingKernels) {
+    const int rank = RankOf(k);
+    if (rank > best_rank && rank <= allowed && HammingKernelSupported(k)) {
+      best = k;
+      best_rank = rank;
+    }
+  }
+  return best;
+}
+
+// The active kernel's functions, chosen on first use.
+const Kernels& Active() {
+  static const Kernels& kernels = KernelsOf(ActiveHammingKernel());
+  return kernels;
 }
 
 }  // namespace
+
+const char* HammingKernelName(HammingKernel kernel) {
+  switch (kernel) {
+    case HammingKernel::kPortable:
+      return "portable";
+    case HammingKernel::kPopcnt:
+      return "popcnt";
+    case HammingKernel::kAvx2:
+      return "avx2";
+    case HammingKernel::kAvx512:
+      return "avx512";
+    case HammingKernel::kNeon:
+      return "neon";
+  }
+  return "unknown";
+}
 
 bool HammingKernelSupported(HammingKernel kernel) {
   switch (kernel) {
     case HammingKernel::kPortable:
       return true;
-#ifdef GTBOW_HAVE_AVX512_POPCNT_KERNEL
+#ifdef GTBOW_HAVE_X86_HAMMING_KERNELS
+    case HammingKernel::kPopcnt:
+      __builtin_cpu_init();
+      return __builtin_cpu_supports("popcnt");
+    case HammingKernel::kAvx2:
+      __builtin_cpu_init();
+      return __builtin_cpu_supports("popcnt") && __builtin_cpu_supports("avx2");
     case HammingKernel::kAvx512:
-      return __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512vpopcntdq");
+      __builtin_cpu_init();
+      return __builtin_cpu_supports("popcnt") && __builtin_cpu_supports("avx512f") &&
+             __builtin_cpu_supports("avx512vpopcntdq");
+#endif
+#ifdef GTBOW_HAVE_NEON_HAMMING_KERNEL
+    case HammingKernel::kNeon:
+      return true;  // Advanced SIMD is part of every aarch64 CPU
 #endif
     default:
       return false;
   }
 }
 
-int HammingBelowUsing(HammingKernel kernel, const uint64_t* q, const uint64_t* blocks, int n,
-                      int chunks, uint32_t threshold, uint32_t* index, uint32_t* distance) {
-  if (!HammingKernelSupported(kernel))
-    throw std::invalid_argument("Hamming kernel not supported by this CPU");
-#ifdef GTBOW_HAVE_AVX512_POPCNT_KERNEL
-  if (kernel == HammingKernel::kAvx512)
-    return Avx512Below(q, blocks, n, chunks, threshold, index, distance);
-#endif
-  return PortableBelow(q, blocks, n, chunks, threshold, index, distance);
+HammingKernel ActiveHammingKernel() {
+  static const HammingKernel kernel = ChooseKernel();
+  return kernel;
 }
 
-void HammingAll(const uint64_t* q, const uint64_t* blocks, int n, int chunks, uint32_t* out) {
-  static const HammingKernel kernel = BestKernel();
-#ifdef GTBOW_HAVE_AVX512_POPCNT_KERNEL
-  if (kernel == HammingKernel::kAvx512) return Avx512All(q, blocks, n, chunks, out);
-#endif
-  for (int i = 0; i < n; ++i) out[i] = PortableDistance(q, blocks, i, chunks);
+const char* ActiveHammingKernelName() { return HammingKernelName(ActiveHammingKernel()); }
+
+int HammingBelowUsing(HammingKernel kernel, const uint64_t* q, const uint64_t* blocks, int n,
+                      int chunks, uint32_t threshold, uint32_t* index, uint32_t* distance) {
+  return KernelsOf(kernel).below(q, blocks, n, chunks, threshold, index, distance);
+}
+
+void HammingAllUsing(HammingKernel kernel, const uint64_t* q, const uint64_t* blocks, int n,
+                     int chunks, uint32_t* out) {
+  KernelsOf(kernel).all(q, blocks, n, chunks, out);
+}
+
+uint32_t HammingDistanceUsing(HammingKernel kernel, const uint8_t* a, const uint8_t* b, int bytes) {
+  return KernelsOf(kernel).pair(a, b, bytes);
+}
+
+int HammingNearestUsing(HammingKernel kernel, const uint8_t* q, const uint8_t* rows, size_t stride,
+                        int n, int bytes, uint32_t* distance) {
+  return KernelsOf(kernel).nearest(q, rows, stride, n, bytes, distance);
 }
 
 int HammingBelow(const uint64_t* q, const uint64_t* blocks, int n, int chunks, uint32_t threshold,
                  uint32_t* index, uint32_t* distance) {
-  static const HammingKernel kernel = BestKernel();
-  return HammingBelowUsing(kernel, q, blocks, n, chunks, threshold, index, distance);
+  return Active().below(q, blocks, n, chunks, threshold, index, distance);
+}
+
+void HammingAll(const uint64_t* q, const uint64_t* blocks, int n, int chunks, uint32_t* out) {
+  Active().all(q, blocks, n, chunks, out);
+}
+
+uint32_t HammingDistance(const uint8_t* a, const uint8_t* b, int bytes) {
+  return Active().pair(a, b, bytes);
+}
+
+int HammingNearest(const uint8_t* q, const uint8_t* rows, size_t stride, int n, int bytes,
+                   uint32_t* distance) {
+  return Active().nearest(q, rows, stride, n, bytes, distance);
 }
 
 }  // namespace gtbow

@@ -1,8 +1,16 @@
-// Hamming distances between binary descriptors (ORB: 32 bytes = 256 bits): an AVX-512 kernel
-// with the vector popcount (VPOPCNTDQ) where the CPU has it, a scalar popcount loop otherwise.
-// Both give identical results. Private to the core.
+// Hamming distances between binary descriptors (ORB: 32 bytes = 256 bits), the only place of the
+// core that counts bits. Kernels, chosen at run time (simd_dispatch.h; GTBOW_SIMD):
+//   portable  plain C++ with a bit-twiddling popcount (no instruction set beyond the baseline;
+//             never the libgcc call __builtin_popcountll becomes on baseline x86-64)
+//   popcnt    x86-64's 64-bit POPCNT instruction
+//   avx2      packed scans: a 4-bit table lookup (vpshufb) per byte and a sum of absolute
+//             differences (vpsadbw) per 64-bit lane, 4 rows per register; POPCNT for pairs
+//   avx512    packed scans: AVX-512 VPOPCNTDQ, 8 rows per register; POPCNT for pairs
+//   neon      aarch64's per-byte count (vcnt) and pairwise widening adds
+// Every kernel gives the same distances, bit for bit. Private to the core.
 #pragma once
 
+#include <cstddef>
 #include <cstdint>
 #include <vector>
 
@@ -19,14 +27,30 @@ int HammingBelow(const uint64_t* query, const uint64_t* blocks, int n, int chunk
                  uint32_t threshold, uint32_t* index, uint32_t* distance);
 // The distances of `query` to all `n` packed rows, in row order (out: n values).
 void HammingAll(const uint64_t* query, const uint64_t* blocks, int n, int chunks, uint32_t* out);
-// Hamming distance of two descriptors of `bytes` bytes.
+// Hamming distance of two descriptors of `bytes` bytes (any length).
 uint32_t HammingDistance(const uint8_t* a, const uint8_t* b, int bytes);
+// The first of `n` rows of `bytes` bytes, `stride` bytes apart, at the smallest distance to `q`
+// (ties: the lower index); its distance in *distance. -1 (and *distance untouched) when n = 0.
+int HammingNearest(const uint8_t* q, const uint8_t* rows, size_t stride, int n, int bytes,
+                   uint32_t* distance);
 
-// The kernels by name, for tests. The dispatched call uses the widest the CPU runs;
-// GTBOW_SIMD=portable (or avx2, which has no vector popcount) caps it.
-enum class HammingKernel { kPortable, kAvx512 };
+// The kernels by name, for tests and reports. The calls above use ActiveHammingKernel().
+enum class HammingKernel { kPortable, kPopcnt, kAvx2, kAvx512, kNeon };
+constexpr HammingKernel kAllHammingKernels[] = {HammingKernel::kPortable, HammingKernel::kPopcnt,
+                                                HammingKernel::kAvx2, HammingKernel::kAvx512,
+                                                HammingKernel::kNeon};
+const char* HammingKernelName(HammingKernel kernel);  // "portable", "popcnt", ...
+// Whether this build has the kernel and the CPU runs it.
 bool HammingKernelSupported(HammingKernel kernel);
+// The kernel the calls above use: the widest supported one that GTBOW_SIMD allows.
+HammingKernel ActiveHammingKernel();
+// The calls above through a given kernel; std::invalid_argument when it is not supported.
 int HammingBelowUsing(HammingKernel kernel, const uint64_t* query, const uint64_t* blocks, int n,
                       int chunks, uint32_t threshold, uint32_t* index, uint32_t* distance);
+void HammingAllUsing(HammingKernel kernel, const uint64_t* query, const uint64_t* blocks, int n,
+                     int chunks, uint32_t* out);
+uint32_t HammingDistanceUsing(HammingKernel kernel, const uint8_t* a, const uint8_t* b, int bytes);
+int HammingNearestUsing(HammingKernel kernel, const uint8_t* q, const uint8_t* rows, size_t stride,
+                        int n, int bytes, uint32_t* distance);
 
 }  // namespace gtbow

@@ -78,15 +78,9 @@ class AkmVocabulary : public Vocabulary {
     out->assign(static_cast<size_t>(q.rows), WordHit{});
     for (int i = 0; i < q.rows; ++i) {
       float best = std::numeric_limits<float>::max();
-      uint32_t arg = 0;
-      for (int c = 0; c < centroids_.rows; ++c) {
-        const float d = Space::Distance(q.ptr<E>(i), centroids_.ptr<E>(c), q.cols);
-        if (d < best) {
-          best = d;
-          arg = static_cast<uint32_t>(c);
-        }
-      }
-      (*out)[i] = {arg, best};
+      const int c = Space::Nearest(q.ptr<E>(i), centroids_.ptr<E>(), centroids_.step[0],
+                                   centroids_.rows, q.cols, &best);
+      (*out)[i] = {c >= 0 ? static_cast<uint32_t>(c) : 0u, best};
     }
   }
 

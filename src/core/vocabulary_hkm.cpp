@@ -49,16 +49,10 @@ class HkmVocabulary : public Vocabulary {
       float best = 0.0f;
       while (nodes_[node].first_child >= 0) {
         const Node& n = nodes_[node];
-        int32_t arg = n.first_child;
         best = std::numeric_limits<float>::max();
-        for (int32_t c = n.first_child; c < n.first_child + n.num_children; ++c) {
-          const float dist = Space::Distance(x, centroids_.ptr<E>(c), q.cols);
-          if (dist < best) {
-            best = dist;
-            arg = c;
-          }
-        }
-        node = arg;
+        const int c = Space::Nearest(x, centroids_.ptr<E>(n.first_child), centroids_.step[0],
+                                     n.num_children, q.cols, &best);
+        node = n.first_child + std::max(c, 0);
       }
       (*out)[i] = {static_cast<uint32_t>(nodes_[node].word), best};
     }
@@ -95,14 +89,8 @@ void KMeansPP(const cv::Mat& data, const std::vector<int>& members, int k, std::
     bool changed = false;
     for (int i = 0; i < n; ++i) {
       float best = std::numeric_limits<float>::max();
-      int arg = 0;
-      for (int c = 0; c < k; ++c) {
-        const float dist = Space::Distance(sub.ptr<E>(i), centers->ptr<E>(c), d);
-        if (dist < best) {
-          best = dist;
-          arg = c;
-        }
-      }
+      const int arg = std::max(
+          Space::Nearest(sub.ptr<E>(i), centers->ptr<E>(), centers->step[0], k, d, &best), 0);
       if ((*assign)[i] != arg || it == 0) changed = changed || (*assign)[i] != arg;
       (*assign)[i] = arg;
     }

@@ -59,19 +59,60 @@ struct FloatSpace {
   }
   // FLANN reports squared L2.
   static float FromFlann(float d) { return std::sqrt(std::max(0.0f, d)); }
+  // Of `n` rows (`step` bytes apart), the first nearest to `x` if it is strictly nearer than
+  // *best: its index, and its distance in *best. Otherwise -1 and *best unchanged. (The scan
+  // "if (distance < best) take it" over the rows in order.)
+  static int Nearest(const float* x, const float* rows, size_t step, int n, int d, float* best) {
+    int arg = -1;
+    for (int c = 0; c < n; ++c) {
+      const float dist = Distance(
+          x, reinterpret_cast<const float*>(reinterpret_cast<const char*>(rows) + c * step), d);
+      if (dist < *best) {
+        *best = dist;
+        arg = c;
+      }
+    }
+    return arg;
+  }
+};
+
+// FLANN's Hamming distance (flann::Hamming: whole 64-bit words on x86-64, 32-bit words
+// elsewhere, trailing bytes ignored) through the core's dispatched kernels: the same counts,
+// with the CPU's popcount instruction instead of FLANN's bit-twiddling.
+struct FlannHamming {
+  using ElementType = unsigned char;
+  using ResultType = unsigned int;
+  template <typename Iterator1, typename Iterator2>
+  ResultType operator()(Iterator1 a, Iterator2 b, size_t size, ResultType /*worst*/ = 0) const {
+#ifdef FLANN_PLATFORM_64_BIT
+    const size_t counted = size / 8 * 8;
+#else
+    const size_t counted = size / 4 * 4;
+#endif
+    return HammingDistance(&*a, &*b, static_cast<int>(counted));
+  }
 };
 
 // Packed binary descriptors under Hamming distance.
 struct BinarySpace {
   using Element = unsigned char;
-  using FlannDistance = flann::Hamming<unsigned char>;
+  using FlannDistance = FlannHamming;
   using FlannIndex = flann::HierarchicalClusteringIndex<FlannDistance>;
+  // Bits, through the dispatched kernels (hamming_distance.h).
   static float Distance(const unsigned char* a, const unsigned char* b, int d) {
-    int s = 0;
-    for (int i = 0; i < d; ++i) s += __builtin_popcount(static_cast<unsigned>(a[i] ^ b[i]));
-    return static_cast<float>(s);
+    return static_cast<float>(HammingDistance(a, b, d));
   }
   static float FromFlann(unsigned int d) { return static_cast<float>(d); }
+  // As FloatSpace::Nearest, in one call of the kernel: distances are whole numbers of bits, so
+  // the scan takes the first row at the smallest count if that is below *best.
+  static int Nearest(const unsigned char* x, const unsigned char* rows, size_t step, int n, int d,
+                     float* best) {
+    uint32_t bits = 0;
+    const int arg = HammingNearest(x, rows, step, n, d, &bits);
+    if (arg < 0 || !(static_cast<float>(bits) < *best)) return -1;
+    *best = static_cast<float>(bits);
+    return arg;
+  }
 };
 
 // Converts descriptors to the element type of the metric's space.

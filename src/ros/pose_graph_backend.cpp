@@ -22,6 +22,7 @@
 #include <memory>
 #include <optional>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include <geometry_msgs/TransformStamped.h>
@@ -262,6 +263,7 @@ class Backend {
       if (!camera_offset_) camera_offset_ = e;
       try {
         const ClosureState s = graph_.AddClosure(ToBaseClosure(msg, *e));
+        ids_[{q, mt}].push_back(graph_.closures_added() - 1);
         if (s == ClosureState::kRejected) ++rejected_input_;
       } catch (const std::exception& ex) {
         Reject(what + ": " + ex.what());
@@ -373,6 +375,18 @@ class Backend {
     res.closures_pending = static_cast<uint32_t>(graph_.pending());
     res.closures_rejected = static_cast<uint32_t>(rejected_input_);
     res.closures_downweighted = static_cast<uint32_t>(last_downweighted_);
+    if (req.closure_query_stamps.size() != req.closure_match_stamps.size()) {
+      res.status =
+          gtbow_ros::MakeStatus(ground_texture_bow::Status::INVALID_ARGUMENT,
+                                "closure_query_stamps and closure_match_stamps differ in length (" +
+                                    std::to_string(req.closure_query_stamps.size()) + " and " +
+                                    std::to_string(req.closure_match_stamps.size()) + ")");
+      return true;
+    }
+    for (size_t i = 0; i < req.closure_query_stamps.size(); ++i) {
+      res.closure_states.push_back(
+          StateOf(Ns(req.closure_query_stamps[i]), Ns(req.closure_match_stamps[i])));
+    }
     if (req.path.empty()) {
       res.status = gtbow_ros::MakeStatus(ground_texture_bow::Status::OK, "optimised");
       return true;
@@ -385,6 +399,20 @@ class Backend {
       res.status = gtbow_ros::MakeStatus(ground_texture_bow::Status::FAILED_PRECONDITION, error);
     }
     return true;
+  }
+
+  // The state of the closures with these stamps, as ~save_trajectory reports it.
+  uint8_t StateOf(int64_t query_ns, int64_t match_ns) const {
+    using Srv = ground_texture_bow::SaveTrajectory::Response;
+    const auto it = ids_.find({query_ns, match_ns});
+    if (it == ids_.end()) return Srv::NOT_IN_GRAPH;
+    bool pending = false;
+    for (const size_t id : it->second) {
+      const ClosureState s = graph_.State(id);
+      if (s == ClosureState::kAccepted) return Srv::ACCEPTED;
+      pending |= s == ClosureState::kPending;
+    }
+    return pending ? Srv::PENDING : Srv::REJECTED;
   }
 
   struct Waiting {
@@ -407,6 +435,8 @@ class Backend {
   std::optional<Pose2D> fixed_offset_, camera_offset_, last_tf_;
   int64_t last_tf_stamp_ = 0;
   std::map<std::string, Pose2D> offsets_;
+  // The pose graph's ids of the closures added, by (query, match) stamp.
+  std::map<std::pair<int64_t, int64_t>, std::vector<size_t>> ids_;
   std::deque<Waiting> waiting_;
   size_t received_ = 0, rejected_input_ = 0, bad_odometry_ = 0, last_downweighted_ = 0;
 };

@@ -20,6 +20,7 @@
 #include "ground_texture_bow/core/config.h"
 #include "ground_texture_bow/core/database.h"
 #include "ground_texture_bow/core/progress.h"
+#include "ground_texture_bow/core/simd.h"
 
 #include <opencv2/core.hpp>
 #include "image_source.h"
@@ -220,6 +221,7 @@ void RunOne(const BenchArgs& a, const std::string& preset, const RetrievalConfig
       "- map file: %.1f MB; save %.0f ms; load %.0f ms; vocabulary load %.0f ms (+ %.0f ms search "
       "index)\n",
       file_bytes / 1e6, save_ms, load_ms, vocab_load_ms, search_setup_ms);
+  line("- kernels: %s (GTBOW_SIMD caps them)\n", ActiveSimdKernels().c_str());
   line("- word search: %s (%s)\n", AnnIndexName(c.vocabulary.ann).c_str(),
        c.vocabulary.ann == AnnIndex::kIvf
            ? ("nprobe " + std::to_string(a.nprobe > 0 ? a.nprobe : c.vocabulary.nprobe)).c_str()

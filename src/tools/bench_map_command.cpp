@@ -43,6 +43,7 @@
 #include "ground_texture_bow/core/localizer.h"
 #include "ground_texture_bow/core/parallel.h"
 #include "ground_texture_bow/core/progress.h"
+#include "ground_texture_bow/core/simd.h"
 #include "image_source.h"
 #include "json_writer.h"
 #include "synthetic_images.h"
@@ -570,6 +571,8 @@ std::string ToJson(const BenchMapArgs& a, const std::vector<VariantResult>& resu
   j.Key("dataset").Str(a.dataset).Key("query_split").Str(qsplit).Key("queries").Int(n_queries);
   j.Key("real_keyframes_available").Int(real_available).Key("threads").Int(a.threads);
   j.Key("seed").Int(static_cast<long long>(a.seed));
+  j.Key("kernels").Open('{').Key("hamming").Str(ActiveHammingKernelName());
+  j.Key("l2_bytes").Str(ActiveByteDistanceKernelName()).Close('}');
   j.Key("synthetic_note")
       .Str(
           "keyframes beyond the real ones carry postings sampled from the real keypoints' rows, "
@@ -656,7 +659,8 @@ std::string ToMarkdown(const std::vector<VariantResult>& results, const std::str
        "cache. Localization is correct within "
     << kSuccessMeters * 1000 << " mm and " << kSuccessRadians * 180 / M_PI
     << " degrees of the ground truth (as `gtbow eval`). The loaded map must answer every query "
-       "(top-K ids, scores and the fix) exactly as the map did before the save.\n\n";
+       "(top-K ids, scores and the fix) exactly as the map did before the save. Kernels: "
+    << ActiveSimdKernels() << ".\n\n";
   for (const VariantResult& r : results) {
     const size_t n = r.real + r.synthetic;
     m << "### " << r.variant.name
@@ -788,6 +792,20 @@ void RunBenchMap(const BenchMapArgs& a) {
                     ToJson(a, results, qsplit, std::min(real_available, a.keyframes), n_queries),
                     ToMarkdown(results, qsplit, std::min(real_available, a.keyframes), n_queries),
                     "plot_bench_map.py", a.no_plot);
+  // The loaded map must answer exactly as the map did before the save (README, docs/RESULTS.md):
+  // the results are written first (the differences are listed in bench_map.md), then the run
+  // fails.
+  std::string differ;
+  for (const VariantResult& r : results) {
+    if (r.identical == n_queries) continue;
+    differ += (differ.empty() ? "" : "; ") + r.variant.label() + ": " +
+              std::to_string(n_queries - r.identical) + " of " + std::to_string(n_queries) +
+              " answers differ";
+  }
+  if (!differ.empty()) {
+    throw std::runtime_error("bench-map: answers after the save and load differ from before (" +
+                             differ + "); listed in " + (out / "bench_map.md").string());
+  }
 }
 
 }  // namespace

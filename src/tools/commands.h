@@ -10,7 +10,7 @@ namespace tools {
 void RegisterSynth(CLI::App& app);
 void RegisterTrainVocab(CLI::App& app);
 void RegisterBenchRetrieval(CLI::App& app);
-void RegisterBenchScaling(CLI::App& app);  // gtbow bench
+void RegisterBenchScaling(CLI::App& app);  // gtbow bench-scaling (alias: bench)
 void RegisterBenchMap(CLI::App& app);      // gtbow bench-map
 void RegisterEval(CLI::App& app);
 void RegisterMapCommands(CLI::App& app);  // map-info, convert-map

@@ -22,6 +22,7 @@
 #include "ground_texture_bow/core/parallel.h"
 #include "ground_texture_bow/core/pose.h"
 #include "ground_texture_bow/core/progress.h"
+#include "ground_texture_bow/core/simd.h"
 #include "ground_texture_bow/eval/metrics.h"
 #include "image_source.h"
 #include "json_writer.h"
@@ -137,6 +138,8 @@ std::string ToJson(const EvalArgs& a, const Dataset& ds, const std::vector<Prese
     j.Close(']');
     j.Key("timing").Open('{');
     j.Key("queries").Int(static_cast<long long>(pr.timed));
+    j.Key("kernels").Open('{').Key("hamming").Str(ActiveHammingKernelName());
+    j.Key("l2_bytes").Str(ActiveByteDistanceKernelName()).Close('}');
     WriteStat(j, "feature_extraction", pr.extract);
     WriteStat(j, "bow_transform", pr.transform);
     WriteStat(j, "database_insertion", pr.insert);
@@ -228,8 +231,8 @@ std::string ToMarkdown(const EvalArgs& a, const std::vector<PresetResult>& resul
     }
     const PaperTiming& p = PaperTimingFor(pr.config);
     md << "\nTiming over " << pr.timed
-       << " random queries against the full database, one thread (ms; "
-       << "paper: " << p.name << ", i7-13700, 32,251 images):\n\n";
+       << " random queries against the full database, one thread (ms; kernels: "
+       << ActiveSimdKernels() << "; paper: " << p.name << ", i7-13700, 32,251 images):\n\n";
     md << "| stage | paper mean ± sd | here mean ± sd | here median | here p95 |\n| --- | --- | "
           "--- | --- | --- |\n";
     auto row = [&](const char* name, const double* paper, const TimingStats& s) {

@@ -4,6 +4,8 @@
 #include "ground_texture_bow/backend/pose_graph.h"
 
 #include <cmath>
+#include <cstdio>
+#include <ostream>
 #include <random>
 
 #include <gtest/gtest.h>
@@ -12,6 +14,13 @@
 
 namespace gtbow {
 namespace backend {
+
+void PrintTo(ClosureState s, std::ostream* os) {
+  *os << (s == ClosureState::kAccepted  ? "accepted"
+          : s == ClosureState::kPending ? "pending"
+                                        : "rejected");
+}
+
 namespace {
 
 constexpr int64_t kStep = 100000000;  // 0.1 s between samples
@@ -65,33 +74,106 @@ std::vector<Closure> TrueClosures(const std::vector<Pose2D>& truth, size_t min_g
   return out;
 }
 
-TEST(PoseGraph, ClosuresRemoveTheDriftAndAWrongOneStaysOut) {
-  const Drive d = MakeDrive();
-  PoseGraph g{PoseGraphOptions{}};
-  for (size_t i = 0; i < d.odom.size(); ++i)
-    g.AddOdometry(static_cast<int64_t>(i) * kStep, d.odom[i]);
-  auto closures = TrueClosures(d.truth, 200);
-  ASSERT_GT(closures.size(), 100u);
-  // A wrong closure in the middle: claims two poses 0.3 m apart are 1 cm apart.
-  Closure wrong = closures[closures.size() / 2];
-  wrong.match_ns -= 30 * kStep;
-  const size_t wrong_index = closures.size() / 2;
-  closures.insert(closures.begin() + wrong_index, wrong);
-  for (size_t i = 0; i < closures.size(); ++i) {
-    const ClosureState s = g.AddClosure(closures[i]);
-    if (i == wrong_index) {
-      EXPECT_EQ(s, ClosureState::kPending);
+// The wrong closure of the tests below: a true closure from the middle of the drive with its
+// match moved 30 samples (0.3 m of driving) on, so it claims two poses about 0.3 m apart are
+// as close as the true pair. Inserted where the true one was: the true closures after it, their
+// matches further on, fall in its consistency window and could confirm it.
+struct Injected {
+  std::vector<Closure> closures;  // in the order they are added
+  size_t index;                   // the wrong one's position
+  double true_distance;           // between the wrong pair's poses, m
+  size_t later_neighbours;        // true closures after it, both ends within 0.45 m of driving
+};
+
+Injected WithWrongClosure(const Drive& d) {
+  Injected in;
+  in.closures = TrueClosures(d.truth, 200);
+  in.index = in.closures.size() / 2;
+  Closure wrong = in.closures[in.index];
+  wrong.match_ns += 30 * kStep;
+  in.closures.insert(in.closures.begin() + static_cast<long>(in.index), wrong);
+  auto at = [&](int64_t ns) { return static_cast<size_t>(ns / kStep); };
+  const Pose2D &m = d.truth[at(wrong.match_ns)], &q = d.truth[at(wrong.query_ns)];
+  in.true_distance = std::hypot(m.x - q.x, m.y - q.y);
+  std::vector<double> driven(d.truth.size(), 0.0);
+  for (size_t i = 1; i < d.truth.size(); ++i) {
+    driven[i] = driven[i - 1] +
+                std::hypot(d.truth[i].x - d.truth[i - 1].x, d.truth[i].y - d.truth[i - 1].y);
+  }
+  in.later_neighbours = 0;
+  for (size_t i = in.index + 1; i < in.closures.size(); ++i) {
+    const Closure& c = in.closures[i];
+    if (std::abs(driven[at(c.query_ns)] - driven[at(wrong.query_ns)]) < 0.45 &&
+        std::abs(driven[at(c.match_ns)] - driven[at(wrong.match_ns)]) < 0.45) {
+      ++in.later_neighbours;
     }
   }
-  EXPECT_GE(g.pending(), 1u);
-  const SolveReport r = g.Optimize();
-  EXPECT_TRUE(r.ran);
+  return in;
+}
+
+// The bound a backend must meet on that input: the trajectory within 3 mm RMSE of the truth and
+// the wrong pair's distance within 5 mm of the true one (test/ros/backend_rostest.cpp's fold).
+constexpr double kMaxRmse = 0.003, kMaxFold = 0.005;
+
+struct Outcome {
+  size_t wrong_id = 0;
+  bool wrong_ever_accepted = false;  // after any later closure or optimisation
+  ClosureState wrong_final = ClosureState::kPending;
+  double rmse = 0, fold = 0;
+  size_t accepted = 0;
+};
+
+// Feeds the drive and the closures to a graph with `o`, optimising every 25 closures (as the
+// node does once a second) and at the end; the wrong closure's state is read by its id after
+// every closure and every optimisation that follow it.
+Outcome Feed(const Drive& d, const Injected& in, const PoseGraphOptions& o) {
+  PoseGraph g{o};
+  for (size_t i = 0; i < d.odom.size(); ++i) {
+    g.AddOdometry(static_cast<int64_t>(i) * kStep, d.odom[i]);
+  }
+  Outcome out;
+  for (size_t i = 0; i < in.closures.size(); ++i) {
+    if (i == in.index) out.wrong_id = g.closures_added();
+    g.AddClosure(in.closures[i]);
+    if (i % 25 == 24) g.Optimize();
+    if (i >= in.index) {
+      out.wrong_ever_accepted |= g.State(out.wrong_id) == ClosureState::kAccepted;
+    }
+  }
+  g.Optimize();
+  EXPECT_FALSE(g.dirty());
+  out.wrong_final = g.State(out.wrong_id);
+  out.wrong_ever_accepted |= out.wrong_final == ClosureState::kAccepted;
   std::vector<Pose2D> est;
   for (const auto& p : g.Trajectory()) est.push_back(p.map_from_base);
-  const double before = Rmse(d.truth, d.odom), after = Rmse(d.truth, est);
+  out.rmse = Rmse(d.truth, est);
+  const Closure& w = in.closures[in.index];
+  const Pose2D a = g.PoseAt(w.match_ns), b = g.PoseAt(w.query_ns);
+  out.fold = std::abs(std::hypot(a.x - b.x, a.y - b.y) - in.true_distance);
+  out.accepted = g.accepted();
+  std::printf(
+      "consistency check %s, loss %s: wrong closure %s (%zu later closures in its "
+      "window), ATE RMSE %.2f mm, wrong pair off by %.2f mm, %zu of %zu closures "
+      "accepted\n",
+      o.consistency_check ? "on" : "off", o.loss.c_str(),
+      ::testing::PrintToString(out.wrong_final).c_str(), in.later_neighbours, 1e3 * out.rmse,
+      1e3 * out.fold, out.accepted, in.closures.size());
+  return out;
+}
+
+TEST(PoseGraph, ClosuresRemoveTheDriftAndAWrongOneStaysOut) {
+  // The defaults: the consistency check and the Cauchy loss.
+  const Drive d = MakeDrive();
+  const Injected in = WithWrongClosure(d);
+  ASSERT_GT(in.closures.size(), 100u);
+  const Outcome r = Feed(d, in, PoseGraphOptions{});
+  EXPECT_FALSE(r.wrong_ever_accepted) << "a later closure confirmed the wrong one";
+  EXPECT_EQ(r.wrong_final, ClosureState::kPending);
+  const double before = Rmse(d.truth, d.odom);
   EXPECT_GT(before, 0.005);
-  EXPECT_LT(after, 0.2 * before) << "odometry " << before << " m, backend " << after << " m";
-  EXPECT_LT(after, 0.003);
+  EXPECT_LT(r.rmse, 0.2 * before) << "odometry " << before << " m, backend " << r.rmse << " m";
+  EXPECT_LT(r.rmse, kMaxRmse);
+  EXPECT_LT(r.fold, kMaxFold);
 }
 
 TEST(PoseGraph, WithoutDefencesTheWrongClosureBendsTheTrajectory) {
@@ -122,6 +204,31 @@ TEST(PoseGraph, WithoutDefencesTheWrongClosureBendsTheTrajectory) {
   EXPECT_GT(Rmse(d.truth, b), 2.0 * Rmse(d.truth, a));
 }
 
+TEST(PoseGraph, TheConsistencyCheckAloneKeepsTheWrongClosureOut) {
+  // No robust loss: only the check stands between the wrong closure and the graph.
+  const Drive d = MakeDrive();
+  const Injected in = WithWrongClosure(d);
+  ASSERT_GT(in.true_distance, 0.1);
+  ASSERT_GE(in.later_neighbours, 10u) << "too few later closures could confirm the wrong one";
+  PoseGraphOptions o;
+  o.loss = "none";
+  o.consistency_check = true;
+  const Outcome r = Feed(d, in, o);
+  EXPECT_FALSE(r.wrong_ever_accepted) << "a later closure confirmed the wrong one";
+  EXPECT_EQ(r.wrong_final, ClosureState::kPending);
+  EXPECT_GT(r.accepted, in.closures.size() / 2) << "the check must still accept true closures";
+  EXPECT_LT(r.rmse, kMaxRmse);
+  EXPECT_LT(r.fold, kMaxFold);
+
+  // The negative control: the same input with the check off (and no loss) takes the wrong
+  // closure in and fails the bound, so the check is what met it.
+  o.consistency_check = false;
+  const Outcome control = Feed(d, in, o);
+  EXPECT_EQ(control.wrong_final, ClosureState::kAccepted);
+  EXPECT_GT(control.fold, 2 * kMaxFold) << "the control should fold onto the wrong closure";
+  EXPECT_GT(control.rmse, 2 * kMaxRmse) << "the control should bend the whole trajectory";
+}
+
 TEST(PoseGraph, RefusesBadInput) {
   PoseGraph g{PoseGraphOptions{}};
   g.AddOdometry(10, {0, 0, 0});
@@ -137,6 +244,14 @@ TEST(PoseGraph, RefusesBadInput) {
   c.covariance = {1e-8, 0, 0, 0, 1e-8, 0, 0, 0, 1e-6};
   c.query_ns = 25;  // beyond the odometry
   EXPECT_THROW(g.AddClosure(c), std::invalid_argument);
+  EXPECT_EQ(g.closures_added(), 0u) << "a closure refused by throwing gets no id";
+  EXPECT_THROW(g.State(0), std::out_of_range);
+  c.query_ns = 10;  // the same stamp at both ends: rejected, and so it stays
+  EXPECT_EQ(g.AddClosure(c), ClosureState::kRejected);
+  EXPECT_EQ(g.State(0), ClosureState::kRejected);
+  c.query_ns = 20;
+  EXPECT_EQ(g.AddClosure(c), ClosureState::kPending);
+  EXPECT_EQ(g.State(1), ClosureState::kPending);
   PoseGraphOptions bad;
   bad.loss = "square";
   EXPECT_THROW(PoseGraph{bad}, std::invalid_argument);

@@ -1,8 +1,11 @@
 // The small version of the real-floor benchmark (issue 14), inside `make test`: a dataset cut
 // from two real photographs (a fine asphalt and a smooth concrete, ../shared/real_floors) with
 // two others for training, evaluated with the high-accuracy preset and the paper's plain-ORB
-// reading; scripts/write_real_results.py --check asserts that the high-accuracy preset
-// localizes at least 90% of the day-0 queries of each surface and no fewer than the plain one.
+// reading; scripts/write_real_results.py --check --small asserts that both surfaces are there,
+// that the high-accuracy preset localizes at least 90% of the day-0 queries of each surface and
+// no fewer than the plain one, and that on the smooth concrete plain ORB localizes at most half
+// (measured: 25-40% of the 20 queries; paper_literal's vocabulary is not reproducible run to
+// run) while the high-accuracy preset localizes at least 70% (scripts/targets.py, REAL_SMALL).
 #include <filesystem>
 #include <string>
 
@@ -36,8 +39,8 @@ TEST_F(RealFloorSmall, HighAccuracyLocalizesSmoothConcreteWherePlainOrbDoesNot) 
                                   "/paper_literal.yaml --out " +
                  out + " --no-cache --no-plots --timing-queries 5 -q");
   ASSERT_EQ(r.code, 0) << r.output;
-  r = RunCommand("/usr/bin/python3 " GTBOW_SCRIPTS_DIR "/write_real_results.py --check " + out +
-                 "/results.json 0.9");
+  r = RunCommand("/usr/bin/python3 " GTBOW_SCRIPTS_DIR "/write_real_results.py --check --small " +
+                 out + "/results.json");
   std::printf("%s", r.output.c_str());
   EXPECT_EQ(r.code, 0) << r.output;
 }

@@ -88,8 +88,14 @@ class PoseGraph {
   // A closure whose stamps the odometry covers (else std::invalid_argument, as for a
   // non-finite pose or a covariance that is not symmetric positive definite). Returns the
   // closure's state: accepted (in the graph), pending (waiting for a consistent partner) or
-  // rejected (matches two stamps closer than the localizer could mean).
+  // rejected (matches two stamps closer than the localizer could mean). The closure's id is
+  // the number of closures added before it (closures_added() - 1 after the call); one the call
+  // throws for gets none.
   ClosureState AddClosure(const Closure& closure);
+  size_t closures_added() const { return closures_.size(); }
+  // A closure's state now (a pending one becomes accepted when a later closure confirms it).
+  // Throws std::out_of_range for an id not yet given.
+  ClosureState State(size_t id) const;
 
   // Optimises the graph (warm-started from the last solution). Cheap when nothing changed.
   SolveReport Optimize();

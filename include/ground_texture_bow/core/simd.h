@@ -1,0 +1,20 @@
+// The SIMD kernels the engine runs on this CPU, by name, for reports beside timings. They are
+// chosen at run time, once per process: the widest the CPU supports, or up to the one that the
+// environment variable GTBOW_SIMD names (portable, popcnt, avx2, avx512 on x86-64; portable,
+// neon on aarch64). Unset: every instruction set the CPU has.
+#pragma once
+
+#include <string>
+
+namespace gtbow {
+
+// The Hamming kernel (binary words: the binary IVF word search, Hamming k-means and vocabulary
+// trees, descriptor matching in verification): "portable", "popcnt", "avx2", "avx512" or "neon".
+const char* ActiveHammingKernelName();
+// The squared-L2 kernel between bytes (the l2_bytes IVF word search): "portable", "avx2" or
+// "avx512".
+const char* ActiveByteDistanceKernelName();
+// Both, for one line of a report: "hamming avx512, l2_bytes avx512".
+std::string ActiveSimdKernels();
+
+}  // namespace gtbow
