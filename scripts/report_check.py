@@ -160,3 +160,41 @@ def parser(doc):
 def table(rows):
     lines = ["| target | wanted | measured | |", "| --- | --- | --- | --- |"]
     return lines + ["| %s | %s | %s | %s |" % r for r in rows]
+
+
+def bench_section_main(doc, name, stem, section, heading, intro, rows_of, demote, plot):
+    """The whole of a write_*.py for one benchmark command's output directory: reads
+    BENCH_DIR/STEM.json, checks its targets (rows_of(data, chk)), and unless --check splices
+    into DOCS/RESULTS.md the section `section`: the heading, intro(data), the targets, the
+    command's Markdown (STEM.md, passed through demote) and its plot (STEM.png, copied to
+    DOCS/results/PNG under `plot` = (PNG, alt text))."""
+    import os
+    import shutil
+    from results_section import splice
+
+    p = parser(doc)
+    p.add_argument("bench_dir")
+    p.add_argument("docs", nargs="?")
+    a = p.parse_args()
+    if not a.check and not a.docs:
+        p.error("DOCS_DIR is needed unless --check")
+    chk = Check(name, a.strict)
+
+    def go():
+        data = load_json(chk, os.path.join(a.bench_dir, stem + ".json"))
+        rows = rows_of(data, chk)
+        if a.check or chk.missing:
+            return
+        with open(os.path.join(a.bench_dir, stem + ".md")) as f:
+            md = f.read()
+        os.makedirs(os.path.join(a.docs, "results"), exist_ok=True)
+        lines = [heading, "", intro(data), ""]
+        lines += table(rows)
+        lines += ["", demote(md).rstrip(), ""]
+        png = os.path.join(a.bench_dir, stem + ".png")
+        if os.path.exists(png):
+            shutil.copy(png, os.path.join(a.docs, "results", plot[0]))
+            lines += ["![%s](results/%s)" % (plot[1], plot[0]), ""]
+        print("wrote %s" % splice(a.docs, section, "\n".join(lines)))
+
+    run(chk, go)
