@@ -16,6 +16,8 @@
 #                   and queries keep coming, loaded, answers compared; into docs/RESULTS.md
 #   make benchmark-real  the presets on datasets cut from real floor photos (REAL_FLOORS, default
 #                   ../shared/real_floors), a table per surface into docs/RESULTS.md
+#   make benchmark-kernels  the timings under every Hamming kernel the CPU runs (avx512, avx2,
+#                   popcnt, portable) on that real-floor data, the answers compared
 #   make benchmark-authors  our presets beside the authors' choices (each alone and together)
 #                   on the 4,000-image dataset issue 14 measured the authors' code on
 #   make benchmark-verification  issue 15's verification ablation (wrong verified poses) on the
@@ -39,7 +41,7 @@ BENCH_DATA ?= $(CURDIR)/build/benchmark/asphalt32k
 BENCH_OUT  ?= $(CURDIR)/build/benchmark/eval
 
 .PHONY: deps build demo test test-slow-disk test-sanitize test-arm fuzz soak benchmark bench-scaling \
-  bench-map bench-data clean benchmark-real benchmark-authors benchmark-verification benchmark-keypoints
+  bench-map bench-data clean benchmark-real benchmark-kernels benchmark-authors benchmark-verification benchmark-keypoints
 
 REAL_FLOORS ?= $(abspath $(CURDIR)/../shared/real_floors)
 
@@ -139,6 +141,14 @@ bench-map: bench-data
 # images at 0.5 mm per pixel, days 0 and 180, every preset (about 5 minutes).
 benchmark-real: build
 	@bash scripts/benchmark_real.sh $(GTBOW) "$(REAL_FLOORS)" build/benchmark/real build/benchmark/real_eval
+
+# The timings under every Hamming kernel the CPU runs (GTBOW_SIMD: avx512, avx2, popcnt,
+# portable) on make benchmark-real's dataset: vocabulary training and gtbow eval, three rounds
+# with the kernels interleaved; fails when a kernel's vocabulary, rankings or poses differ from
+# the portable kernel's, or a claimed target is missed (docs/RESULTS.md, section "kernels";
+# about 15 minutes).
+benchmark-kernels: build
+	@bash scripts/benchmark_kernels.sh $(GTBOW) "$(REAL_FLOORS)" build/benchmark/real build/benchmark/kernels
 
 # The dataset issue 14 measured the authors' code on (rendered once), our presets and each of
 # the authors' choices alone and together (about 15 minutes).

@@ -19,18 +19,7 @@ if [ ! -d "$photos" ]; then
   echo "benchmark-real: no photo directory $photos (set REAL_FLOORS=DIR)" >&2
   exit 2
 fi
-map=(ufoai-textures_street001.png ufoai-textures_e8crete03.jpg ufoai-textures_concrete_g_11.jpg
-     nexuiz-textures_gravel01.png nexuiz-textures_mudground04.png supertuxkart-data_Paving_stones_2.jpg
-     lugaru-data_MossRock.jpg
-     ufoai-textures_concrete_g_9.jpg nexuiz-textures_eX_cretebase_02.png nexuiz-textures_eX_cretebase_03_dark.png)
-train=(ufoai-textures_street002.png nexuiz-textures_mudground03.png supertuxkart-data_road2.jpg
-       ufoai-textures_concrete_s_1.jpg redeclipse-data_plaster1.jpg ufoai-textures_concrete003.png
-       redeclipse-data_sand01_c.png redeclipse-data_redrock02.png)
-args=()
-for f in "${map[@]}"; do args+=(--photo "$photos/$f"); done
-for f in "${train[@]}"; do args+=(--train-photo "$photos/$f"); done
-"$gtbow" synth --out "$data" --force "${args[@]}" --width 320 --height 240 --meters-per-pixel 0.0005 \
-  --queries 40 --days 0,180 --train 300 -q
+bash "$here/scripts/real_floor_dataset.sh" "$gtbow" "$photos" "$data"
 "$gtbow" eval --dataset "$data" --words 20000 --preset "$cfg/high_accuracy.yaml" --preset "$cfg/fast.yaml" \
   --preset "$cfg/paper_literal.yaml" --preset "$cfg/paper_literal_fast.yaml" --preset "$cfg/authors.yaml" \
   --preset "$cfg/ablation/authors/ours_plain_orb.yaml" --preset "$cfg/dbow_baseline.yaml" \

@@ -131,14 +131,26 @@ void BinaryIvfIndex::Pack(const cv::Mat& words) {
   const int nlist = coarse_.rows;
   packed_.clear();
   packed_offsets_.resize(nlist);
+  scan_ids_.resize(ids_.size());
+  scan_centre_.resize(ids_.size());
   std::vector<uint8_t> rows;
+  std::vector<std::pair<uint32_t, uint32_t>> order;  // (distance to the centre, word id)
   for (int c = 0; c < nlist; ++c) {
     packed_offsets_[c] = packed_.size();
     const uint32_t b = offsets_[c], e = offsets_[c + 1];
+    order.clear();
+    for (uint32_t k = b; k < e; ++k) {
+      const uint8_t* w = words.ptr<uint8_t>(static_cast<int>(ids_[k]));
+      order.emplace_back(HammingDistance(w, coarse_.ptr<uint8_t>(c), bytes_), ids_[k]);
+    }
+    std::sort(order.begin(), order.end());
     rows.resize(static_cast<size_t>(e - b) * bytes_);
     for (uint32_t k = b; k < e; ++k) {
+      const auto& [centre, id] = order[k - b];
+      scan_ids_[k] = id;
+      scan_centre_[k] = static_cast<uint16_t>(centre);
       std::memcpy(rows.data() + static_cast<size_t>(k - b) * bytes_,
-                  words.ptr<uint8_t>(static_cast<int>(ids_[k])), bytes_);
+                  words.ptr<uint8_t>(static_cast<int>(id)), bytes_);
     }
     PackBinaryRows(rows.data(), static_cast<int>(e - b), bytes_, &packed_);
   }
@@ -162,12 +174,17 @@ void BinaryIvfIndex::Search(const cv::Mat& q, int r, int nprobe, std::vector<Wor
   std::vector<uint64_t> pq(static_cast<size_t>(q.rows) * chunks_);
   for (int i = 0; i < q.rows; ++i)
     std::memcpy(pq.data() + static_cast<size_t>(i) * chunks_, q.ptr<uint8_t>(i), bytes_);
-  // list -> descriptors probing it
-  std::vector<std::vector<int>> visitors(nlist);
-  if (nprobe == nlist) {
-    for (auto& v : visitors) {
+  // list -> descriptors probing it, with their distance to its centre. Each descriptor's
+  // nearest list (ties: the lower index) goes to `first`, the others to `rest`.
+  struct Visit {
+    int query;
+    uint32_t centre;
+  };
+  std::vector<std::vector<Visit>> first(nlist), rest(nlist);
+  if (nprobe == nlist && !bound_) {
+    for (auto& v : rest) {
       v.resize(q.rows);
-      std::iota(v.begin(), v.end(), 0);
+      for (int i = 0; i < q.rows; ++i) v[i] = Visit{i, 0};
     }
   } else {
     std::vector<uint32_t> idx(nlist), dist(nlist);
@@ -177,39 +194,60 @@ void BinaryIvfIndex::Search(const cv::Mat& q, int r, int nprobe, std::vector<Wor
                    chunks_, std::numeric_limits<uint32_t>::max(), idx.data(), dist.data());
       for (int c = 0; c < nlist; ++c)
         key[c] = (static_cast<uint64_t>(dist[c]) << 32) | static_cast<uint32_t>(c);
-      std::nth_element(key.begin(), key.begin() + (nprobe - 1), key.end());
-      for (int p = 0; p < nprobe; ++p) visitors[static_cast<uint32_t>(key[p])].push_back(i);
-    }
-  }
-  // Each list's words are read once for all the descriptors that probe it.
-  std::vector<uint32_t> idx, dist;
-  for (int list = 0; list < nlist; ++list) {
-    if (visitors[list].empty()) continue;
-    const uint32_t b = offsets_[list], e = offsets_[list + 1];
-    idx.resize(e - b);
-    dist.resize(e - b);
-    const uint64_t* blocks = packed_.data() + packed_offsets_[list];
-    for (int i : visitors[list]) {
-      WordHit* best = out->data() + static_cast<size_t>(i) * r;  // sorted by Closer
-      const float worst = best[r - 1].distance;
-      // Distances up to the current worst (ties may still win on the word id).
-      const uint32_t threshold = std::isinf(worst) ? std::numeric_limits<uint32_t>::max()
-                                                   : static_cast<uint32_t>(worst) + 1;
-      const int found =
-          HammingBelow(pq.data() + static_cast<size_t>(i) * chunks_, blocks,
-                       static_cast<int>(e - b), chunks_, threshold, idx.data(), dist.data());
-      for (int j = 0; j < found; ++j) {
-        const WordHit hit{ids_[b + idx[j]], static_cast<float>(dist[j])};
-        if (!Closer(hit, best[r - 1])) continue;
-        int m = r - 1;
-        while (m > 0 && Closer(hit, best[m - 1])) {
-          best[m] = best[m - 1];
-          --m;
-        }
-        best[m] = hit;
+      if (nprobe < nlist) std::nth_element(key.begin(), key.begin() + (nprobe - 1), key.end());
+      const auto nearest = std::min_element(key.begin(), key.begin() + nprobe);
+      for (int p = 0; p < nprobe; ++p) {
+        const Visit v{i, static_cast<uint32_t>(key[p] >> 32)};
+        (key.begin() + p == nearest ? first : rest)[static_cast<uint32_t>(key[p])].push_back(v);
       }
     }
   }
+  // Each list's words are read once for all the descriptors that probe it: the nearest lists
+  // first, in full, then the others, each on the run of words the bound leaves.
+  std::vector<uint32_t> idx, dist;
+  uint64_t scanned = 0;
+  for (const auto* visits : {&first, &rest}) {
+    for (int list = 0; list < nlist; ++list) {
+      if ((*visits)[list].empty()) continue;
+      const uint32_t b = offsets_[list], e = offsets_[list + 1];
+      idx.resize(e - b);
+      dist.resize(e - b);
+      const uint16_t* centre = scan_centre_.data() + b;
+      for (const Visit& v : (*visits)[list]) {
+        WordHit* best = out->data() + static_cast<size_t>(v.query) * r;  // sorted by Closer
+        const float worst = best[r - 1].distance;
+        // Distances up to the current worst (ties may still win on the word id).
+        const bool open = std::isinf(worst);
+        const uint32_t t = open ? 0 : static_cast<uint32_t>(worst);
+        const uint32_t threshold = open ? std::numeric_limits<uint32_t>::max() : t + 1;
+        uint32_t lo = 0, hi = e - b;
+        if (bound_ && !open) {  // the words with |D - dc(w)| <= t
+          const uint32_t from = v.centre > t ? v.centre - t : 0, to = v.centre + t;
+          lo = static_cast<uint32_t>(std::lower_bound(centre, centre + (e - b), from) - centre);
+          hi = static_cast<uint32_t>(std::upper_bound(centre + lo, centre + (e - b), to) - centre);
+          if (lo >= hi) continue;
+          lo -= lo % kBinaryBlockRows;  // scans start on a packed block
+        }
+        scanned += hi - lo;
+        const uint64_t* blocks =
+            packed_.data() + packed_offsets_[list] + static_cast<size_t>(lo) * chunks_;
+        const int found =
+            HammingBelow(pq.data() + static_cast<size_t>(v.query) * chunks_, blocks,
+                         static_cast<int>(hi - lo), chunks_, threshold, idx.data(), dist.data());
+        for (int j = 0; j < found; ++j) {
+          const WordHit hit{scan_ids_[b + lo + idx[j]], static_cast<float>(dist[j])};
+          if (!Closer(hit, best[r - 1])) continue;
+          int m = r - 1;
+          while (m > 0 && Closer(hit, best[m - 1])) {
+            best[m] = best[m - 1];
+            --m;
+          }
+          best[m] = hit;
+        }
+      }
+    }
+  }
+  rows_scanned_.fetch_add(scanned, std::memory_order_relaxed);
 }
 
 }  // namespace gtbow

@@ -1,6 +1,7 @@
 #include "byte_distance.h"
 
 #include <algorithm>
+#include <atomic>
 #include <cstddef>
 #include <cstdlib>
 #include <cstring>
@@ -235,17 +236,23 @@ const char* SimdKernelName(SimdKernel kernel) {
   return "unknown";
 }
 
+std::atomic<int> g_byte_kernel{-1};  // chosen on first use and again by SetSimdLimit
+
+void RechooseByteDistanceKernel() {
+  g_byte_kernel.store(static_cast<int>(ChooseKernel()), std::memory_order_relaxed);
+}
+
 SimdKernel ActiveSimdKernel() {
-  static const SimdKernel kernel = ChooseKernel();
-  return kernel;
+  if (g_byte_kernel.load(std::memory_order_relaxed) < 0) RechooseByteDistanceKernel();
+  return static_cast<SimdKernel>(g_byte_kernel.load(std::memory_order_relaxed));
 }
 
 const char* ActiveByteDistanceKernelName() { return SimdKernelName(ActiveSimdKernel()); }
 
 int PackedSquaredDistancesBelow(const int16_t* pq, const int16_t* blocks, int n, int d,
                                 int32_t threshold, uint32_t* index, int32_t* distance) {
-  static const SimdKernel kernel = ActiveSimdKernel();
-  return PackedSquaredDistancesBelowUsing(kernel, pq, blocks, n, d, threshold, index, distance);
+  return PackedSquaredDistancesBelowUsing(ActiveSimdKernel(), pq, blocks, n, d, threshold, index,
+                                          distance);
 }
 
 }  // namespace gtbow

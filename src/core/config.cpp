@@ -136,6 +136,9 @@ const std::vector<Field>& Fields() {
       Enum("vocabulary", "ann", &R::vocabulary, &V::ann, &ParseAnnIndex, &AnnIndexName),
       Value("vocabulary", "nprobe", &R::vocabulary, &V::nprobe),
       Value("vocabulary", "train_nprobe", &R::vocabulary, &V::train_nprobe),
+      // The triangle bounds change no answer: like threads, not recorded in maps and caches.
+      Value("vocabulary", "ivf_bound", &R::vocabulary, &V::ivf_bound, false),
+      Value("vocabulary", "train_bound", &R::vocabulary, &V::train_bound, false),
       Value("vocabulary", "hkm_branching", &R::vocabulary, &V::hkm_branching),
       Value("vocabulary", "hkm_depth", &R::vocabulary, &V::hkm_depth),
       Value("vocabulary", "seed", &R::vocabulary, &V::seed),

@@ -1,6 +1,7 @@
 #include "hamming_distance.h"
 
 #include <algorithm>
+#include <atomic>
 #include <cstdlib>
 #include <cstring>
 #include <stdexcept>
@@ -141,10 +142,38 @@ GTBOW_KERNEL_INLINE uint32_t PackedRowDistance(const uint64_t* q, const uint64_t
   return s;
 }
 
+// The distances of the `valid` rows of packed block `b` to the ORB query q0..q3 (4 chunks):
+// the chunk k of the block's 8 rows side by side, so row j reads b[j], b[8 + j], ...
+template <class Pop, class Emit>
+GTBOW_KERNEL_INLINE void Block4(uint64_t q0, uint64_t q1, uint64_t q2, uint64_t q3,
+                                const uint64_t* b, int valid, Emit emit) {
+  for (int j = 0; j < valid; ++j) {
+    emit(j, Pop::Count(q0 ^ b[j]) + Pop::Count(q1 ^ b[kBinaryBlockRows + j]) +
+                Pop::Count(q2 ^ b[2 * kBinaryBlockRows + j]) +
+                Pop::Count(q3 ^ b[3 * kBinaryBlockRows + j]));
+  }
+}
+
+// Block by block; for ORB (4 chunks) the query stays in registers and the chunk loop is
+// unrolled. The row is written before the comparison decides whether it counts (no branch on
+// the distance), so `index` and `distance` need room for n values.
 template <class Pop>
 GTBOW_KERNEL_INLINE int BelowLoop(const uint64_t* q, const uint64_t* blocks, int n, int chunks,
                                   uint32_t threshold, uint32_t* index, uint32_t* distance) {
   int m = 0;
+  const int nblocks = (n + kBinaryBlockRows - 1) / kBinaryBlockRows;
+  if (chunks == 4) {
+    for (int bi = 0; bi < nblocks; ++bi) {
+      const int first = bi * kBinaryBlockRows;
+      Block4<Pop>(q[0], q[1], q[2], q[3], blocks + static_cast<size_t>(bi) * 4 * kBinaryBlockRows,
+                  std::min(kBinaryBlockRows, n - first), [&](int j, uint32_t s) {
+                    index[m] = static_cast<uint32_t>(first + j);
+                    distance[m] = s;
+                    m += s < threshold ? 1 : 0;
+                  });
+    }
+    return m;
+  }
   for (int i = 0; i < n; ++i) {
     const uint32_t s = PackedRowDistance<Pop>(q, blocks, i, chunks);
     if (s < threshold) {
@@ -158,6 +187,16 @@ GTBOW_KERNEL_INLINE int BelowLoop(const uint64_t* q, const uint64_t* blocks, int
 template <class Pop>
 GTBOW_KERNEL_INLINE void AllLoop(const uint64_t* q, const uint64_t* blocks, int n, int chunks,
                                  uint32_t* out) {
+  if (chunks == 4) {
+    const int nblocks = (n + kBinaryBlockRows - 1) / kBinaryBlockRows;
+    for (int bi = 0; bi < nblocks; ++bi) {
+      const int first = bi * kBinaryBlockRows;
+      Block4<Pop>(q[0], q[1], q[2], q[3], blocks + static_cast<size_t>(bi) * 4 * kBinaryBlockRows,
+                  std::min(kBinaryBlockRows, n - first),
+                  [&](int j, uint32_t s) { out[first + j] = s; });
+    }
+    return;
+  }
   for (int i = 0; i < n; ++i) out[i] = PackedRowDistance<Pop>(q, blocks, i, chunks);
 }
 
@@ -588,10 +627,15 @@ HammingKernel ChooseKernel() {
   return best;
 }
 
-// The active kernel's functions, chosen on first use.
+// The active kernel and its functions, chosen on first use and again by SetSimdLimit.
+std::atomic<int> g_kernel{-1};
+std::atomic<const Kernels*> g_kernels{nullptr};
+
 const Kernels& Active() {
-  static const Kernels& kernels = KernelsOf(ActiveHammingKernel());
-  return kernels;
+  const Kernels* k = g_kernels.load(std::memory_order_acquire);
+  if (k != nullptr) return *k;
+  RechooseHammingKernel();
+  return *g_kernels.load(std::memory_order_acquire);
 }
 
 }  // namespace
@@ -637,9 +681,15 @@ bool HammingKernelSupported(HammingKernel kernel) {
   }
 }
 
+void RechooseHammingKernel() {
+  const HammingKernel kernel = ChooseKernel();
+  g_kernel.store(static_cast<int>(kernel), std::memory_order_relaxed);
+  g_kernels.store(&KernelsOf(kernel), std::memory_order_release);
+}
+
 HammingKernel ActiveHammingKernel() {
-  static const HammingKernel kernel = ChooseKernel();
-  return kernel;
+  if (g_kernel.load(std::memory_order_relaxed) < 0) RechooseHammingKernel();
+  return static_cast<HammingKernel>(g_kernel.load(std::memory_order_relaxed));
 }
 
 const char* ActiveHammingKernelName() { return HammingKernelName(ActiveHammingKernel()); }

@@ -23,6 +23,7 @@ constexpr int kBinaryBlockRows = 8;
 void PackBinaryRows(const uint8_t* rows, int n, int bytes, std::vector<uint64_t>* out);  // appends
 // Rows among `n` packed rows whose Hamming distance to `query` (bytes / 8 chunks) is below
 // `threshold`: writes their indices and distances in increasing index order, returns the count.
+// `index` and `distance` need room for n values (a kernel may write past the count).
 int HammingBelow(const uint64_t* query, const uint64_t* blocks, int n, int chunks,
                  uint32_t threshold, uint32_t* index, uint32_t* distance);
 // The distances of `query` to all `n` packed rows, in row order (out: n values).

@@ -55,6 +55,7 @@ Localizer::Localizer(std::shared_ptr<Vocabulary> vocabulary, std::string vocabul
         VocabularyKindName(vocabulary_->kind()) + "/" + MetricName(vocabulary_->metric()));
   }
   vocabulary_->set_search(vo.ann, vo.nprobe);
+  vocabulary_->set_search_bound(vo.ivf_bound);
   vocabulary_->set_checks(vo.checks);
   encoder_ = std::make_unique<BowEncoder>(*vocabulary_, options_.retrieval.bow);
   encoder_->set_threads(options_.threads);

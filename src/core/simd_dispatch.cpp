@@ -1,5 +1,6 @@
 #include "simd_dispatch.h"
 
+#include <atomic>
 #include <climits>
 #include <cstdio>
 #include <cstdlib>
@@ -41,11 +42,28 @@ int ReadRank() {
   return INT_MAX;
 }
 
+std::atomic<int> g_rank_override{-1};  // SetSimdLimit's cap; -1: GTBOW_SIMD's
+
 }  // namespace
 
 int SimdRankAllowed() {
+  const int over = g_rank_override.load(std::memory_order_relaxed);
+  if (over >= 0) return over;
   static const int rank = ReadRank();
   return rank;
+}
+
+bool SetSimdLimit(const std::string& name) {
+  int rank = -1;
+  if (name.empty()) rank = INT_MAX;
+  for (const NamedRank& r : kRanks) {
+    if (name == r.name) rank = r.rank;
+  }
+  if (rank < 0) return false;
+  g_rank_override.store(rank, std::memory_order_relaxed);
+  RechooseHammingKernel();
+  RechooseByteDistanceKernel();
+  return true;
 }
 
 std::string ActiveSimdKernels() {

@@ -10,7 +10,7 @@
 // (the byte distances have no popcnt kernel: GTBOW_SIMD=popcnt runs their portable one).
 // Unset or empty: everything the CPU supports. A name this build does not know (or one of the
 // other architecture's) is reported once on stderr and ignored. The variable is read once per
-// process, when the first kernel is chosen.
+// process, when the first kernel is chosen; SetSimdLimit (simd.h) changes the cap later.
 #pragma once
 
 namespace gtbow {
@@ -24,7 +24,11 @@ constexpr int kSimdRankAvx512 = 3;
 constexpr int kSimdRankNeon = 1;
 #endif
 
-// The highest rank GTBOW_SIMD allows (a large number when it allows everything).
+// The highest rank GTBOW_SIMD (or SetSimdLimit) allows (a large number when it allows
+// everything).
 int SimdRankAllowed();
+// Each family chooses its kernel again under the current cap (called by SetSimdLimit).
+void RechooseHammingKernel();
+void RechooseByteDistanceKernel();
 
 }  // namespace gtbow

@@ -93,6 +93,7 @@ std::unique_ptr<Vocabulary> TrainVocabulary(const VocabularyOptions& o, const cv
   }
   vocab->set_idf(std::move(idf));
   vocab->set_search(o.ann, o.nprobe);
+  vocab->set_search_bound(o.ivf_bound);
   return vocab;
 }
 

@@ -41,8 +41,13 @@ class AkmVocabulary : public Vocabulary {
         if (!ivf_) ivf_ = std::make_unique<IvfIndex>(centroids_, metric_ == Metric::kL2Bytes, 1, 0);
       } else {
         if (!bivf_) bivf_ = std::make_unique<BinaryIvfIndex>(centroids_, 1, 0);
+        bivf_->set_bound(bound_);
       }
     }
+  }
+  void set_search_bound(bool on) override {
+    bound_ = on;
+    if (bivf_) bivf_->set_bound(on);
   }
 
   void Assign(const cv::Mat& descriptors, int r, std::vector<WordHit>* out) const override {
@@ -128,6 +133,7 @@ class AkmVocabulary : public Vocabulary {
       ivf_ = std::make_unique<IvfIndex>(centroids_, metric_ == Metric::kL2Bytes, r);
     } else {
       bivf_ = std::make_unique<BinaryIvfIndex>(centroids_, r);
+      bivf_->set_bound(bound_);
     }
     ann_ = AnnIndex::kIvf;
   }
@@ -158,6 +164,7 @@ class AkmVocabulary : public Vocabulary {
   mutable std::once_flag index_once_;
   AnnIndex ann_ = AnnIndex::kFlann;
   int nprobe_ = 8;
+  bool bound_ = false;                    // VocabularyOptions::ivf_bound
   std::unique_ptr<IvfIndex> ivf_;         // float spaces
   std::unique_ptr<BinaryIvfIndex> bivf_;  // Hamming
 };
@@ -252,6 +259,7 @@ std::unique_ptr<Vocabulary> TrainAkmIn(const VocabularyOptions& o, const cv::Mat
     if (binary_ivf) {
       ivf =
           std::make_unique<BinaryIvfIndex>(centroids, o.seed + static_cast<uint64_t>(it), threads);
+      ivf->set_bound(o.train_bound);
     } else {
       current = std::make_unique<AkmVocabulary<Space>>(o.metric, centroids.clone(), o.num_trees,
                                                        train_checks);

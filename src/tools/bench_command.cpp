@@ -89,6 +89,7 @@ void RunOne(const BenchArgs& a, const std::string& preset, const RetrievalConfig
             const std::vector<ImageFeatures>& feats) {
   auto ts = std::chrono::steady_clock::now();
   vocab->set_search(c.vocabulary.ann, a.nprobe > 0 ? a.nprobe : c.vocabulary.nprobe);
+  vocab->set_search_bound(c.vocabulary.ivf_bound);
   const double search_setup_ms = Ms(std::chrono::steady_clock::now() - ts);
   const BowEncoder enc(*vocab, c.bow);
   auto t0 = std::chrono::steady_clock::now();

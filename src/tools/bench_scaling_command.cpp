@@ -94,6 +94,7 @@ PresetResult RunPreset(const ScalingArgs& a, const std::string& name, const Retr
   vr.progress = !a.quiet;
   auto vocab = DatasetVocabulary(vr, c, &pr.vocab_desc);
   vocab->set_search(c.vocabulary.ann, c.vocabulary.nprobe);
+  vocab->set_search_bound(c.vocabulary.ivf_bound);
   const BowEncoder enc(*vocab, c.bow);
   std::vector<BowVector> real = EncodeAll(enc, db_feats, a.threads, !a.quiet);
   std::vector<BowVector> queries = EncodeAll(enc, q_feats, a.threads, !a.quiet);

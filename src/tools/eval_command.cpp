@@ -27,6 +27,7 @@
 #include "ground_texture_bow/core/parallel.h"
 #include "ground_texture_bow/core/pose.h"
 #include "ground_texture_bow/core/progress.h"
+#include "ground_texture_bow/core/simd.h"
 #include "ground_texture_bow/eval/metrics.h"
 #include "image_source.h"
 #include "json_writer.h"
@@ -89,6 +90,7 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
 
   auto vocab = GetVocabulary(a, c, ds, &pr.vocab_desc);
   vocab->set_search(c.vocabulary.ann, c.vocabulary.nprobe);
+  vocab->set_search_bound(c.vocabulary.ivf_bound);
   const BowEncoder enc(*vocab, c.bow);
   ImageSource db_src = ImageSource::FromDataset(a.dataset, "database");
   const auto db_feats = ExtractAllCached(db_src, c.features, cache, a.threads, !a.quiet);
@@ -304,11 +306,12 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
   std::mt19937_64 rng(7);
   std::shuffle(pool.begin(), pool.end(), rng);
   pool.resize(std::min(pool.size(), a.timing_queries));
-  std::vector<double> ex, tr, in, qu, po, to;
   const FeatureExtractor fx(c.features);
-  ProgressBar bar("timing", pool.size(), !a.quiet);
-  for (const auto& [s, i] : pool) {
-    const cv::Mat img = q_sources[s].LoadGray(i);
+  struct Samples {
+    std::vector<double> ex, tr, in, qu, po, to;
+  };
+  // One query through every stage, as the node runs them, timed stage by stage.
+  auto time_query = [&](const cv::Mat& img, Samples* out) {
     const auto t0 = std::chrono::steady_clock::now();
     const ImageFeatures f = fx.Extract(img);
     const auto t1 = std::chrono::steady_clock::now();
@@ -321,23 +324,56 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
     const uint32_t id = db.Add(v);
     const auto t5 = std::chrono::steady_clock::now();
     db.Remove(id);
-    ex.push_back(Ms(t1 - t0));
-    tr.push_back(Ms(t2 - t1));
-    qu.push_back(Ms(t3 - t2));
-    po.push_back(Ms(t4 - t3));
-    in.push_back(Ms(t5 - t4));
-    to.push_back(Ms(t4 - t0));
+    out->ex.push_back(Ms(t1 - t0));
+    out->tr.push_back(Ms(t2 - t1));
+    out->qu.push_back(Ms(t3 - t2));
+    out->po.push_back(Ms(t4 - t3));
+    out->in.push_back(Ms(t5 - t4));
+    out->to.push_back(Ms(t4 - t0));
     (void)loc;
+  };
+  auto summarise = [](const Samples& s, auto* dst) {
+    dst->extract = Summarise(s.ex);
+    dst->transform = Summarise(s.tr);
+    dst->insert = Summarise(s.in);
+    dst->query = Summarise(s.qu);
+    dst->pose = Summarise(s.po);
+    dst->total = Summarise(s.to);
+  };
+  Samples main_samples;
+  ProgressBar bar("timing", pool.size(), !a.quiet);
+  for (const auto& [s, i] : pool) {
+    time_query(q_sources[s].LoadGray(i), &main_samples);
     bar.Add();
   }
   bar.Finish();
   pr.timed = pool.size();
-  pr.extract = Summarise(ex);
-  pr.transform = Summarise(tr);
-  pr.insert = Summarise(in);
-  pr.query = Summarise(qu);
-  pr.pose = Summarise(po);
-  pr.total = Summarise(to);
+  summarise(main_samples, &pr);
+  if (!a.timing_kernels.empty()) {
+    // Side by side: a change in the machine's speed falls on every kernel alike.
+    const std::string active = ActiveHammingKernelName();
+    const size_t nk = a.timing_kernels.size();
+    std::vector<Samples> samples(nk);
+    pr.by_kernel.resize(nk);
+    ProgressBar kbar("timing kernels", pool.size(), !a.quiet);
+    for (size_t qi = 0; qi < pool.size(); ++qi) {
+      const cv::Mat img = q_sources[pool[qi].first].LoadGray(pool[qi].second);
+      for (size_t j = 0; j < nk; ++j) {
+        const size_t k = (qi + j) % nk;
+        SetSimdLimit(a.timing_kernels[k]);
+        if (qi == 0) {
+          pr.by_kernel[k].requested = a.timing_kernels[k];
+          pr.by_kernel[k].hamming = ActiveHammingKernelName();
+          pr.by_kernel[k].l2_bytes = ActiveByteDistanceKernelName();
+        }
+        time_query(img, &samples[k]);
+      }
+      kbar.Add();
+    }
+    kbar.Finish();
+    SetSimdLimit(active);
+    for (size_t k = 0; k < nk; ++k) summarise(samples[k], &pr.by_kernel[k]);
+  }
   return pr;
 }
 
@@ -439,6 +475,16 @@ void RegisterEval(CLI::App& app) {
   cmd->add_option("--timing-queries", a->timing_queries,
                   "Random queries timed against the full database")
       ->capture_default_str();
+  cmd->add_option("--timing-kernels", a->timing_kernels,
+                  "Also time each of these SIMD kernels (portable, popcnt, avx2, avx512, neon) "
+                  "on every timed query, side by side (a kernel the CPU lacks runs the next one "
+                  "down)")
+      ->check([](const std::string& name) {
+        const std::string before = ActiveHammingKernelName();
+        if (!SetSimdLimit(name)) return std::string("not a SIMD kernel of this build: ") + name;
+        SetSimdLimit(before);
+        return std::string();
+      });
   cmd->add_option("--candidates", a->candidates,
                   "K: retrieved images verified by pose estimation (default: the preset's "
                   "verification.candidates)");

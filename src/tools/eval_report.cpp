@@ -146,6 +146,19 @@ std::string ToJson(const EvalArgs& a, const Dataset& ds, const std::vector<Prese
     WriteStat(j, "database_query", pr.query);
     WriteStat(j, "pose_estimation", pr.pose);
     WriteStat(j, "end_to_end", pr.total);
+    j.Key("by_kernel").Open('[');
+    for (const auto& k : pr.by_kernel) {
+      j.Open('{').Key("requested").Str(k.requested).Key("hamming").Str(k.hamming);
+      j.Key("l2_bytes").Str(k.l2_bytes);
+      WriteStat(j, "feature_extraction", k.extract);
+      WriteStat(j, "bow_transform", k.transform);
+      WriteStat(j, "database_insertion", k.insert);
+      WriteStat(j, "database_query", k.query);
+      WriteStat(j, "pose_estimation", k.pose);
+      WriteStat(j, "end_to_end", k.total);
+      j.Close('}');
+    }
+    j.Close(']');
     j.Close('}');
     j.Key("scaling").Open('[');
     for (const auto& sp : pr.scaling) {

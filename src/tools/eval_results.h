@@ -48,6 +48,9 @@ struct EvalArgs {
   std::vector<std::string> query_splits;
   size_t max_queries = 0;
   size_t timing_queries = 100;
+  // Kernels timed side by side (SetSimdLimit names): each timed query runs under each of them
+  // in turn, the order rotating from query to query.
+  std::vector<std::string> timing_kernels;
   int candidates = 0;   // 0: each preset's verification.candidates
   int min_inliers = 0;  // 0: each preset's verification.min_inliers
   int threads = 0;
@@ -100,6 +103,12 @@ struct PresetResult {
   std::string vocab_desc;
   std::vector<SplitResult> splits;
   TimingStats extract, transform, insert, query, pose, total;
+  // --timing-kernels: the same stages under each kernel, interleaved query by query.
+  struct KernelTiming {
+    std::string requested, hamming, l2_bytes;  // as asked, and the kernels that ran
+    TimingStats extract, transform, insert, query, pose, total;
+  };
+  std::vector<KernelTiming> by_kernel;
   size_t timed = 0;
   size_t db_images = 0;
   RetrievalConfig config;

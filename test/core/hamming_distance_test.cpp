@@ -59,6 +59,30 @@ TEST(HammingDistance, EveryKernelIsReportedAndThePortableOneIsAlwaysThere) {
   }
 }
 
+// SetSimdLimit (gtbow eval --timing-kernels) switches the dispatched calls to each kernel the
+// CPU has, and back; unknown names change nothing.
+TEST(HammingDistance, SetSimdLimitSwitchesTheDispatchedKernelAndBack) {
+  const std::string before = ActiveHammingKernelName();
+  std::mt19937 rng(5);
+  std::vector<uint8_t> rows(37 * 32);
+  for (auto& b : rows) b = static_cast<uint8_t>(rng());
+  std::vector<uint64_t> packed;
+  PackBinaryRows(rows.data(), 37, 32, &packed);
+  uint64_t q[4];
+  std::memcpy(q, rows.data() + 5 * 32, 32);
+  std::vector<uint32_t> want(37), got(37);
+  HammingAllUsing(HammingKernel::kPortable, q, packed.data(), 37, 4, want.data());
+  for (HammingKernel k : Kernels()) {
+    ASSERT_TRUE(SetSimdLimit(HammingKernelName(k)));
+    EXPECT_EQ(ActiveHammingKernel(), k);
+    HammingAll(q, packed.data(), 37, 4, got.data());
+    EXPECT_EQ(got, want) << HammingKernelName(k);
+  }
+  EXPECT_FALSE(SetSimdLimit("sse9"));
+  ASSERT_TRUE(SetSimdLimit(before));
+  EXPECT_STREQ(ActiveHammingKernelName(), before.c_str());
+}
+
 // The packed scans (HammingBelow, HammingAll) of every kernel: chunk counts up to 40 (past the
 // 31 chunks whose byte counts the vector kernels add before widening), row counts around the
 // block of 8.

@@ -521,6 +521,70 @@ class Soak(Base):
         self.expect(MISSING, "write_soak.py", "--check", self.path(data), why="allowed_growth_mb")
 
 
+# --- make benchmark-kernels (write_kernels.py)
+KERNEL_NAMES = ("portable", "popcnt", "avx2", "avx512")
+
+
+def kernels_run(out, transform=None, train_avx2="14.1", lacks=(), answers_differ=None):
+    """A benchmark_kernels.sh output directory: the timing eval, the trainings and the dumps."""
+    transform = dict({"portable": 13.8, "popcnt": 4.6, "avx2": 2.6, "avx512": 1.8}, **(transform or {}))
+    presets = []
+    for name in ("high_accuracy", "fast", "high_accuracy_bound"):
+        by = []
+        for k in KERNEL_NAMES:
+            ran = "avx2" if k in lacks else k
+            stats = {st: {"median_ms": 1.0} for st in ("feature_extraction", "database_query",
+                                                      "pose_estimation", "end_to_end")}
+            stats["bow_transform"] = {"median_ms": transform[ran]}
+            by.append(dict(stats, requested=k, hamming=ran, l2_bytes=ran))
+        presets.append({"name": name, "database_images": 178,
+                        "timing": {"queries": 200, "by_kernel": by}})
+    dump(os.path.join(out, "eval_timing", "results.json"),
+         {"dataset": {"image_width": 320, "image_height": 240}, "presets": presets})
+    for k in KERNEL_NAMES + ("avx2_no_bound",):
+        with open(os.path.join(out, "train_%s.txt" % k), "w") as f:
+            f.write("  akm, ..., in %s s\n" % (train_avx2 if k == "avx2" else "20.0"))
+    for k in KERNEL_NAMES:
+        dump(os.path.join(out, "eval_%s" % k, "results.json"), {})
+        with open(os.path.join(out, "rankings_%s.high_accuracy.csv" % k), "w") as f:
+            f.write("query,rank,image,score\n0,0,%d,0.5\n" % (7 if k == answers_differ else 3))
+
+
+class Kernels(Base):
+    def run_dir(self, **kw):
+        d = os.path.join(self.dir, "kernels")
+        kernels_run(d, **kw)
+        return d
+
+    def test_all_claims_hold(self):
+        d = self.run_dir()
+        self.expect(OK, "write_kernels.py", "--check", d)
+        self.expect(OK, "write_kernels.py", d, self.docs)
+        self.assertIn("| avx2 | high_accuracy |", self.section("kernels"))
+
+    def test_open_targets_missed_fail_only_with_strict(self):
+        d = self.run_dir(transform={"avx2": 3.35, "popcnt": 4.8})
+        self.expect(OK, "write_kernels.py", "--check", d)
+        self.expect(MISSED, "write_kernels.py", "--check", "--strict", d, why="avx2 against avx512")
+
+    def test_training_too_slow(self):
+        self.expect(MISSED, "write_kernels.py", "--check", self.run_dir(train_avx2="31.5"), why="training")
+
+    def test_answers_of_a_kernel_differ(self):
+        self.expect(MISSED, "write_kernels.py", "--check", self.run_dir(answers_differ="popcnt"),
+                    why="equal the portable")
+
+    def test_a_kernel_the_cpu_lacks_is_left_out(self):
+        d = self.run_dir(lacks=("avx512",))
+        self.expect(OK, "write_kernels.py", d, self.docs)
+        self.assertNotIn("| avx512 |", self.section("kernels"))
+
+    def test_answers_missing(self):
+        d = self.run_dir()
+        shutil.rmtree(os.path.join(d, "eval_avx2"))
+        self.expect(MISSING, "write_kernels.py", "--check", d, why="GTBOW_SIMD=avx2")
+
+
 if __name__ == "__main__":
     if len(sys.argv) < 2:
         sys.exit(__doc__)

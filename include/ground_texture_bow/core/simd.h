@@ -1,7 +1,7 @@
 // The SIMD kernels the engine runs on this CPU, by name, for reports beside timings. They are
-// chosen at run time, once per process: the widest the CPU supports, or up to the one that the
-// environment variable GTBOW_SIMD names (portable, popcnt, avx2, avx512 on x86-64; portable,
-// neon on aarch64). Unset: every instruction set the CPU has.
+// chosen at run time, once per process (SetSimdLimit aside): the widest the CPU supports, or up to
+// the one that the environment variable GTBOW_SIMD names (portable, popcnt, avx2, avx512 on x86-64;
+// portable, neon on aarch64). Unset: every instruction set the CPU has.
 #pragma once
 
 #include <string>
@@ -16,5 +16,11 @@ const char* ActiveHammingKernelName();
 const char* ActiveByteDistanceKernelName();
 // Both, for one line of a report: "hamming avx512, l2_bytes avx512".
 std::string ActiveSimdKernels();
+
+// For benchmarks that time the kernels side by side in one process (gtbow eval
+// --timing-kernels): caps every family's kernel as GTBOW_SIMD=name would, from now on ("" lifts
+// the cap). Returns false, changing nothing, for a name this build does not know. Not while
+// another thread runs the engine.
+bool SetSimdLimit(const std::string& name);
 
 }  // namespace gtbow

@@ -58,6 +58,13 @@ struct VocabularyOptions {
   int train_checks = 0;
   AnnIndex ann = AnnIndex::kIvf;  // AKM: query-time word search
   int nprobe = 16;                // AKM, ivf: groups of words searched per descriptor
+  // AKM, Hamming with ann: ivf: skip the words of a group that the triangle inequality proves
+  // farther than the r-th nearest found so far (binary_ivf.h; the same answers with fewer
+  // distances). ivf_bound at query time: off by default, since with r = 3 it skips about a
+  // tenth of the distances on real floors and costs more than that (docs/RESULTS.md,
+  // "Kernels"); train_bound in k-means training (r = 1, every group), where it saves a third.
+  bool ivf_bound = false;
+  bool train_bound = true;
   // AKM, Hamming with ann: ivf: lists searched per descriptor in k-means training (0 = all:
   // exact assignment).
   int train_nprobe = 0;
@@ -102,6 +109,9 @@ class Vocabulary {
   // Selects the query-time search of an AKM vocabulary (an IVF index is built on demand);
   // no effect on HKM. Not thread-safe with concurrent Assign calls.
   virtual void set_search(AnnIndex /*ann*/, int /*nprobe*/) {}
+  // Turns the triangle bound of a Hamming IVF search on or off (VocabularyOptions::ivf_bound);
+  // the answers are the same either way. No effect on other searches.
+  virtual void set_search_bound(bool /*on*/) {}
 
   // Inverse document frequency of each word, log(N / n_w) over the N training images
   // (0 for words no training image has).
