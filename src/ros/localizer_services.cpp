@@ -29,9 +29,11 @@ Status LocalizerServer::Serve(const char* name, bool any_error_is_input, Body&& 
 }
 
 void LocalizerServer::ForgetMapState() {
-  std::lock_guard<std::mutex> lock(state_mutex_);
-  edges_.clear();
-  last_keyframe_pose_.reset();
+  {
+    std::lock_guard<std::mutex> lock(state_mutex_);
+    edges_.clear();
+  }
+  mapper_->Reset();
 }
 
 bool LocalizerServer::OnQueryCandidates(ground_texture_bow::QueryCandidates::Request& req,

@@ -14,6 +14,7 @@ void RegisterBenchScaling(CLI::App& app);  // gtbow bench-scaling (alias: bench)
 void RegisterBenchMap(CLI::App& app);      // gtbow bench-map
 void RegisterEval(CLI::App& app);
 void RegisterMapCommands(CLI::App& app);  // map-info, convert-map
+void RegisterSlam(CLI::App& app);         // gtbow slam
 
 }  // namespace tools
 }  // namespace gtbow

@@ -24,6 +24,7 @@ int main(int argc, char** argv) {
   gtbow::tools::RegisterBenchMap(app);
   gtbow::tools::RegisterEval(app);
   gtbow::tools::RegisterMapCommands(app);
+  gtbow::tools::RegisterSlam(app);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

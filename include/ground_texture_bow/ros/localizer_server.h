@@ -7,7 +7,7 @@
 // run on the node's spinner threads and call the Localizer directly; it locks internally only
 // for bookkeeping and one query, so no service waits for the worker's extraction.
 //   slot_mutex_   guards pending_ (the waiting image)
-//   state_mutex_  guards last_keyframe_*, edges_, last_fix_ (shared by worker, services, timer)
+//   state_mutex_  guards edges_, last_fix_ (shared by worker, services, timer)
 //   counters are std::atomic; mode_ is std::atomic.
 #pragma once
 
@@ -38,55 +38,10 @@
 #include "ground_texture_bow/SaveMap.h"
 #include "ground_texture_bow/SetMode.h"
 #include "ground_texture_bow/core/localizer.h"
-#include "ground_texture_bow/core/temporal_consistency.h"
+#include "ground_texture_bow/core/mapper.h"
+#include "ground_texture_bow/ros/server_options.h"
 
 namespace gtbow_ros {
-
-enum class Mode { kMapping, kLocalization, kExternal };
-Mode ParseMode(const std::string& name);  // throws std::invalid_argument listing valid names
-std::string ModeName(Mode mode);
-
-// Every parameter of config/localizer.yaml (names and meanings are documented there).
-struct ServerOptions {
-  std::string vocabulary;  // vocabulary file (.gtvoc); or taken from `map`
-  std::string preset;      // retrieval preset YAML; empty: config/high_accuracy.yaml
-  std::string map;         // map file loaded at start (optional)
-  // The engine's options, checked by the engine (LocalizerOptions::Check): the retrieval
-  // options from the preset, and ~threads (threads per image: descriptor assignment, query
-  // blocks), ~meters_per_pixel, ~candidates (K retrieved and verified) and ~min_inliers.
-  gtbow::LocalizerOptions core = DefaultCore();
-  Mode mode = Mode::kMapping;
-  std::string map_frame = "map";
-  std::string odom_frame = "odom";
-  std::string camera_frame;             // overrides the image header's frame_id when set
-  std::string transport = "raw";        // raw (image_transport) or compressed (<image>/compressed)
-  bool use_tf = true;                   // look up the camera pose in map_frame
-  double tf_timeout = 0.05;             // seconds to wait for a transform
-  double keyframe_min_distance = 0.05;  // metres moved since the last keyframe
-  double keyframe_min_angle = 0.35;     // radians turned since the last keyframe
-  int keyframe_every_n = 10;            // without TF: every Nth processed image
-  int exclude_recent = 20;              // newest keyframes not reported as loop closures
-  bool publish_tf = false;              // publish map -> odom from fixes
-  double localized_timeout = 2.0;       // seconds a fix counts as "localized" in diagnostics
-  double planar_variance = 1e-9;        // variance on z, roll and pitch of ~pose
-  double camera_height = 0.0;           // for markers only, metres
-  // ~temporal_consistency (N), ~temporal_distance, ~temporal_angle, ~temporal_max_motion.
-  gtbow::TemporalConsistencyOptions temporal;
-
-  // The node's defaults for the engine's options: 2 threads, 0.25 mm per pixel, K = 5,
-  // 6 inliers.
-  static gtbow::LocalizerOptions DefaultCore();
-  // Throws std::invalid_argument naming the bad parameter: the ROS-only ones here, the
-  // engine's through LocalizerOptions::Check.
-  void Check() const;
-};
-
-// The preset a node uses when ~preset is empty or unset.
-std::string DefaultPreset();
-
-// Reads ServerOptions from the private node handle, the preset file included. Throws
-// std::invalid_argument (a bad parameter) or std::runtime_error (an unreadable preset).
-ServerOptions ReadOptions(const ros::NodeHandle& pnh);
 
 class LocalizerServer {
  public:
@@ -117,7 +72,6 @@ class LocalizerServer {
   void ProcessImage(const Pending& msg);
   std::optional<gtbow::Pose2D> LookupFootprint(const std::string& frame, const ros::Time& stamp,
                                                const std::string& target, bool warn);
-  bool IsKeyframe(const std::optional<gtbow::Pose2D>& pose);
   void PublishFix(const gtbow::Localization& fix, const std_msgs::Header& header);
   void PublishLoopClosure(const gtbow::Candidate& closure, uint32_t query_id,
                           const std_msgs::Header& header);
@@ -137,7 +91,7 @@ class LocalizerServer {
   // anything else -> INTERNAL.
   template <typename Body>
   ground_texture_bow::Status Serve(const char* name, bool any_error_is_input, Body&& body);
-  // Forgets the per-map bookkeeping (loop-closure edges, last keyframe pose).
+  // Forgets the per-map bookkeeping (loop-closure edges, the mapper's keyframe policy and run).
   void ForgetMapState();
 
   // The service handlers: On<Service>, each one's body run through Serve.
@@ -160,6 +114,7 @@ class LocalizerServer {
   ros::NodeHandle nh_, pnh_;
   ServerOptions options_;
   std::unique_ptr<gtbow::Localizer> localizer_;
+  std::unique_ptr<gtbow::Mapper> mapper_;  // the mapping pipeline (worker; Reset from services)
 
   tf2_ros::Buffer tf_buffer_;
   tf2_ros::TransformListener tf_listener_;
@@ -186,15 +141,12 @@ class LocalizerServer {
   Pending pending_;    // guarded by slot_mutex_
   bool stop_ = false;  // guarded by slot_mutex_
   std::thread worker_;
-  gtbow::TemporalConsistency temporal_{gtbow::TemporalConsistencyOptions{}};  // worker only
 
   std::mutex state_mutex_;
-  std::optional<gtbow::Pose2D> last_keyframe_pose_;  // guarded by state_mutex_
-  uint64_t frames_since_keyframe_ = 0;               // guarded by state_mutex_
-  std::vector<Edge> edges_;                          // guarded by state_mutex_
-  ros::Time last_fix_time_;                          // guarded by state_mutex_
-  ros::Time last_image_time_;                        // guarded by state_mutex_
-  std::string last_error_;                           // guarded by state_mutex_
+  std::vector<Edge> edges_;    // guarded by state_mutex_
+  ros::Time last_fix_time_;    // guarded by state_mutex_
+  ros::Time last_image_time_;  // guarded by state_mutex_
+  std::string last_error_;     // guarded by state_mutex_
 };
 
 }  // namespace gtbow_ros

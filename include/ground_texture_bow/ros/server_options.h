@@ -1,0 +1,59 @@
+// The localizer node's parameters (config/localizer.yaml documents each one) and how they are
+// read: the ROS-only ones here, the engine's (gtbow::LocalizerOptions, gtbow::MapperOptions)
+// checked by the engine.
+#pragma once
+
+#include <string>
+
+#include <ros/ros.h>
+
+#include "ground_texture_bow/core/localizer.h"
+#include "ground_texture_bow/core/mapper.h"
+
+namespace gtbow_ros {
+
+enum class Mode { kMapping, kLocalization, kExternal };
+Mode ParseMode(const std::string& name);  // throws std::invalid_argument listing valid names
+std::string ModeName(Mode mode);
+
+// Every parameter of config/localizer.yaml (names and meanings are documented there).
+struct ServerOptions {
+  std::string vocabulary;  // vocabulary file (.gtvoc); or taken from `map`
+  std::string preset;      // retrieval preset YAML; empty: config/high_accuracy.yaml
+  std::string map;         // map file loaded at start (optional)
+  // The engine's options, checked by the engine (LocalizerOptions::Check): the retrieval
+  // options from the preset, and ~threads (threads per image: descriptor assignment, query
+  // blocks), ~meters_per_pixel, ~candidates (K retrieved and verified) and ~min_inliers.
+  gtbow::LocalizerOptions core = DefaultCore();
+  Mode mode = Mode::kMapping;
+  std::string map_frame = "map";
+  std::string odom_frame = "odom";
+  std::string camera_frame;        // overrides the image header's frame_id when set
+  std::string transport = "raw";   // raw (image_transport) or compressed (<image>/compressed)
+  bool use_tf = true;              // look up the camera pose in map_frame
+  double tf_timeout = 0.05;        // seconds to wait for a transform
+  bool publish_tf = false;         // publish map -> odom from fixes
+  double localized_timeout = 2.0;  // seconds a fix counts as "localized" in diagnostics
+  double planar_variance = 1e-9;   // variance on z, roll and pitch of ~pose
+  double camera_height = 0.0;      // for markers only, metres
+  // The engine's mapping policy (gtbow::Mapper): ~keyframe_min_distance, ~keyframe_min_angle,
+  // ~keyframe_every_n (without TF), ~exclude_recent, and ~temporal_consistency (N),
+  // ~temporal_distance, ~temporal_angle, ~temporal_max_motion.
+  gtbow::MapperOptions mapper;
+
+  // The node's defaults for the engine's options: 2 threads, 0.25 mm per pixel, K = 5,
+  // 6 inliers.
+  static gtbow::LocalizerOptions DefaultCore();
+  // Throws std::invalid_argument naming the bad parameter: the ROS-only ones here, the
+  // engine's through LocalizerOptions::Check.
+  void Check() const;
+};
+
+// The preset a node uses when ~preset is empty or unset.
+std::string DefaultPreset();
+
+// Reads ServerOptions from the private node handle, the preset file included. Throws
+// std::invalid_argument (a bad parameter) or std::runtime_error (an unreadable preset).
+ServerOptions ReadOptions(const ros::NodeHandle& pnh);
+
+}  // namespace gtbow_ros

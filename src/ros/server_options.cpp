@@ -1,0 +1,96 @@
+// The localizer node's parameters: defaults, checks and reading (server_options.h).
+#include "ground_texture_bow/ros/server_options.h"
+
+#include <stdexcept>
+#include <string>
+
+#include "ground_texture_bow/core/config.h"
+#include "ground_texture_bow/core/enum_names.h"
+
+namespace gtbow_ros {
+
+namespace {
+constexpr gtbow::EnumName<Mode> kModes[] = {{"mapping", Mode::kMapping},
+                                            {"localization", Mode::kLocalization},
+                                            {"external", Mode::kExternal}};
+}  // namespace
+
+Mode ParseMode(const std::string& name) { return gtbow::ParseEnumName(name, "mode", kModes); }
+std::string ModeName(Mode mode) { return gtbow::EnumValueName(mode, kModes); }
+
+gtbow::LocalizerOptions ServerOptions::DefaultCore() {
+  gtbow::LocalizerOptions core;
+  core.threads = 2;
+  core.meters_per_pixel = 0.00025;
+  return core;
+}
+
+std::string DefaultPreset() { return GTBOW_CONFIG_DIR "/high_accuracy.yaml"; }
+
+void ServerOptions::Check() const {
+  auto need = [](bool ok, const std::string& what) {
+    if (!ok) throw std::invalid_argument("parameter " + what);
+  };
+  need(!vocabulary.empty() || !map.empty(), "~vocabulary (or ~map) must be set");
+  need(!map_frame.empty(), "~map_frame must not be empty");
+  need(transport == "raw" || transport == "compressed", "~transport must be raw or compressed");
+  need(tf_timeout >= 0, "~tf_timeout must be >= 0");
+  need(localized_timeout > 0, "~localized_timeout must be > 0");
+  need(planar_variance > 0, "~planar_variance must be > 0");
+  try {
+    mapper.Check();  // its messages name the parameter without the ~
+  } catch (const std::invalid_argument& e) {
+    throw std::invalid_argument(std::string("parameter ~") + e.what());
+  }
+  try {
+    core.Check();
+  } catch (const std::invalid_argument& e) {
+    throw std::invalid_argument(std::string("parameter (~threads, ~meters_per_pixel, ~candidates, "
+                                            "~min_inliers or the preset): ") +
+                                e.what());
+  }
+}
+
+ServerOptions ReadOptions(const ros::NodeHandle& pnh) {
+  ServerOptions o;
+  std::string mode = ModeName(o.mode);
+  pnh.param("vocabulary", o.vocabulary, o.vocabulary);
+  pnh.param("preset", o.preset, o.preset);
+  if (o.preset.empty()) o.preset = DefaultPreset();
+  pnh.param("map", o.map, o.map);
+  pnh.param("mode", mode, mode);
+  o.mode = ParseMode(mode);
+  pnh.param("map_frame", o.map_frame, o.map_frame);
+  pnh.param("odom_frame", o.odom_frame, o.odom_frame);
+  pnh.param("camera_frame", o.camera_frame, o.camera_frame);
+  pnh.param("transport", o.transport, o.transport);
+  pnh.param("meters_per_pixel", o.core.meters_per_pixel, o.core.meters_per_pixel);
+  pnh.param("threads", o.core.threads, o.core.threads);
+  pnh.param("keep_descriptors", o.core.keep_descriptors, o.core.keep_descriptors);
+  pnh.param("use_tf", o.use_tf, o.use_tf);
+  pnh.param("tf_timeout", o.tf_timeout, o.tf_timeout);
+  pnh.param("keyframe_min_distance", o.mapper.keyframe_min_distance,
+            o.mapper.keyframe_min_distance);
+  pnh.param("keyframe_min_angle", o.mapper.keyframe_min_angle, o.mapper.keyframe_min_angle);
+  pnh.param("keyframe_every_n", o.mapper.keyframe_every_n, o.mapper.keyframe_every_n);
+  // K and the inliers a pose needs: the preset's unless set (> 0).
+  int candidates = 0, min_inliers = 0;
+  pnh.param("candidates", candidates, candidates);
+  pnh.param("min_inliers", min_inliers, min_inliers);
+  pnh.param("exclude_recent", o.mapper.exclude_recent, o.mapper.exclude_recent);
+  pnh.param("temporal_consistency", o.mapper.temporal.required, o.mapper.temporal.required);
+  pnh.param("temporal_distance", o.mapper.temporal.distance, o.mapper.temporal.distance);
+  pnh.param("temporal_angle", o.mapper.temporal.angle, o.mapper.temporal.angle);
+  pnh.param("temporal_max_motion", o.mapper.temporal.max_motion, o.mapper.temporal.max_motion);
+  pnh.param("publish_tf", o.publish_tf, o.publish_tf);
+  pnh.param("localized_timeout", o.localized_timeout, o.localized_timeout);
+  pnh.param("planar_variance", o.planar_variance, o.planar_variance);
+  pnh.param("camera_height", o.camera_height, o.camera_height);
+  o.core.retrieval = gtbow::LoadRetrievalConfig(o.preset);
+  if (candidates != 0) o.core.retrieval.verification.candidates = candidates;
+  if (min_inliers != 0) o.core.retrieval.verification.pose.min_inliers = min_inliers;
+  o.Check();
+  return o;
+}
+
+}  // namespace gtbow_ros
