@@ -7,6 +7,7 @@
 
 #include "commands.h"
 #include "ground_texture_bow/core/config.h"
+#include "ground_texture_bow/core/file_util.h"
 #include "ground_texture_bow/core/localizer.h"
 #include "ground_texture_bow/core/vocabulary.h"
 
@@ -33,6 +34,38 @@ void PrintInfo(const std::string& path) {
       static_cast<double>(i.file_bytes) / 1e6,
       i.keyframes ? static_cast<double>(i.file_bytes) / static_cast<double>(i.keyframes) : 0.0,
       i.vocabulary_path.c_str(), i.meters_per_pixel);
+}
+
+// Every keyframe's id, stamp and pose (map frame), as CSV: loads the map with the vocabulary it
+// names (or `vocab`).
+void WritePoses(const std::string& path, const std::string& vocab, const std::string& out) {
+  const MapFileInfo info = Localizer::ReadMapInfo(path);
+  if (info.version != 2)
+    throw std::invalid_argument(path + ": convert it first (gtbow convert-map)");
+  const std::string vocab_path = vocab.empty() ? info.vocabulary_path : vocab;
+  std::shared_ptr<Vocabulary> v;
+  try {
+    v = Vocabulary::Load(vocab_path);
+  } catch (const std::exception& e) {
+    throw std::runtime_error(std::string(e.what()) +
+                             " (the map's vocabulary; give another path with --vocab)");
+  }
+  LocalizerOptions o;
+  o.retrieval = ParseRetrievalConfig(info.retrieval_config, path + " (its preset)");
+  o.meters_per_pixel = info.meters_per_pixel;
+  o.keep_descriptors = info.descriptors;
+  Localizer loc(v, vocab_path, o);
+  loc.Load(path);
+  std::string csv = "id,stamp,has_pose,x,y,theta\n";
+  char line[160];
+  for (const Keyframe& k : loc.Keyframes()) {
+    std::snprintf(line, sizeof(line), "%u,%.9f,%d,%.9g,%.9g,%.9g\n", k.id, k.stamp_ns * 1e-9,
+                  k.has_pose ? 1 : 0, k.map_from_camera.x, k.map_from_camera.y,
+                  k.map_from_camera.theta);
+    csv += line;
+  }
+  WriteFileAtomic(out, csv);
+  std::printf("  poses           %zu keyframes written to %s\n", loc.size(), out.c_str());
 }
 
 void Convert(const ConvertArgs& a) {
@@ -66,10 +99,19 @@ void Convert(const ConvertArgs& a) {
 
 void RegisterMapCommands(CLI::App& app) {
   auto paths = std::make_shared<std::vector<std::string>>();
+  auto poses = std::make_shared<std::string>();
+  auto info_vocab = std::make_shared<std::string>();
   CLI::App* info = app.add_subcommand("map-info", "What a map file holds (either format version)");
   info->add_option("map", *paths, "Map files")->required()->check(CLI::ExistingFile);
-  info->callback([paths]() {
+  info->add_option("--poses", *poses,
+                   "Also write every keyframe's id, stamp and pose (map frame) to this CSV (one "
+                   "map only)");
+  info->add_option("--vocab", *info_vocab,
+                   "With --poses: the vocabulary (default: the path recorded in the map)");
+  info->callback([paths, poses, info_vocab]() {
+    if (!poses->empty() && paths->size() != 1) throw std::invalid_argument("--poses takes one map");
     for (const std::string& p : *paths) PrintInfo(p);
+    if (!poses->empty()) WritePoses(paths->front(), *info_vocab, *poses);
   });
 
   auto a = std::make_shared<ConvertArgs>();

@@ -3,9 +3,11 @@
 #include <unistd.h>
 
 #include <array>
+#include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <map>
 #include <regex>
 #include <sstream>
 #include <string>
@@ -296,11 +298,46 @@ TEST_F(GtbowCli, SlamClosesLoopsAndWritesAMapWithTheOptimisedPoses) {
   EXPECT_LT(s["ate"]["optimised"]["rmse_mm"].as<double>(), 1.0) << r.output;
   for (const char* f : {"trajectory.csv", "keyframes.csv", "closures.csv", "summary.md"})
     EXPECT_TRUE(fs::exists(dir_ / "slam" / f)) << f;
-  r = RunGtbow("map-info " + Out("slam/map.gtmap"));
+  // The map holds every keyframe at its optimised pose (keyframes.csv's x, y, theta).
+  r = RunGtbow("map-info " + Out("slam/map.gtmap") + " --poses " + Out("map_poses.csv"));
   ASSERT_EQ(r.code, 0) << r.output;
   EXPECT_NE(r.output.find("keyframes       " + std::to_string(s["keyframes"].as<int>())),
             std::string::npos)
       << r.output;
+  auto read_csv = [](const fs::path& p) {
+    std::vector<std::map<std::string, std::string>> rows;
+    std::ifstream f(p);
+    std::string line;
+    std::vector<std::string> head;
+    auto split = [](const std::string& l) {
+      std::vector<std::string> out;
+      std::stringstream ss(l);
+      std::string c;
+      while (std::getline(ss, c, ',')) out.push_back(c);
+      return out;
+    };
+    std::getline(f, line);
+    head = split(line);
+    while (std::getline(f, line)) {
+      const auto cells = split(line);
+      std::map<std::string, std::string> row;
+      for (size_t i = 0; i < head.size() && i < cells.size(); ++i) row[head[i]] = cells[i];
+      rows.push_back(row);
+    }
+    return rows;
+  };
+  const auto in_map = read_csv(dir_ / "map_poses.csv");
+  const auto optimised = read_csv(dir_ / "slam" / "keyframes.csv");
+  ASSERT_EQ(in_map.size(), optimised.size());
+  double moved = 0;  // how far optimisation moved the keyframes from their odometry poses
+  for (size_t k = 0; k < in_map.size(); ++k) {
+    EXPECT_NEAR(std::stod(in_map[k].at("x")), std::stod(optimised[k].at("x")), 1e-8) << k;
+    EXPECT_NEAR(std::stod(in_map[k].at("y")), std::stod(optimised[k].at("y")), 1e-8) << k;
+    moved = std::max(
+        moved, std::hypot(std::stod(in_map[k].at("x")) - std::stod(optimised[k].at("odom_x")),
+                          std::stod(in_map[k].at("y")) - std::stod(optimised[k].at("odom_y"))));
+  }
+  EXPECT_GT(moved, 1e-4);  // not the odometry poses
 }
 
 TEST_F(GtbowCli, ConvertMapTurnsAVersionOneMapIntoOneThatLoads) {
