@@ -143,10 +143,10 @@ benchmark-real: build
 	@bash scripts/benchmark_real.sh $(GTBOW) "$(REAL_FLOORS)" build/benchmark/real build/benchmark/real_eval
 
 # The timings under every Hamming kernel the CPU runs (GTBOW_SIMD: avx512, avx2, popcnt,
-# portable) on make benchmark-real's dataset: vocabulary training and gtbow eval, three rounds
-# with the kernels interleaved; fails when a kernel's vocabulary, rankings or poses differ from
-# the portable kernel's, or a claimed target is missed (docs/RESULTS.md, section "kernels";
-# about 15 minutes).
+# portable) on make benchmark-real's dataset: vocabulary training, and gtbow eval with every
+# kernel on each timed query in turn (--timing-kernels); fails when a kernel's vocabulary,
+# rankings or poses differ from the portable kernel's, or a claimed target is missed
+# (docs/RESULTS.md, section "kernels"; about 10 minutes).
 benchmark-kernels: build
 	@bash scripts/benchmark_kernels.sh $(GTBOW) "$(REAL_FLOORS)" build/benchmark/real build/benchmark/kernels
 

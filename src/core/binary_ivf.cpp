@@ -181,25 +181,18 @@ void BinaryIvfIndex::Search(const cv::Mat& q, int r, int nprobe, std::vector<Wor
     uint32_t centre;
   };
   std::vector<std::vector<Visit>> first(nlist), rest(nlist);
-  if (nprobe == nlist && !bound_) {
-    for (auto& v : rest) {
-      v.resize(q.rows);
-      for (int i = 0; i < q.rows; ++i) v[i] = Visit{i, 0};
-    }
-  } else {
-    std::vector<uint32_t> idx(nlist), dist(nlist);
-    std::vector<uint64_t> key(nlist);
-    for (int i = 0; i < q.rows; ++i) {
-      HammingBelow(pq.data() + static_cast<size_t>(i) * chunks_, coarse_packed_.data(), nlist,
-                   chunks_, std::numeric_limits<uint32_t>::max(), idx.data(), dist.data());
-      for (int c = 0; c < nlist; ++c)
-        key[c] = (static_cast<uint64_t>(dist[c]) << 32) | static_cast<uint32_t>(c);
-      if (nprobe < nlist) std::nth_element(key.begin(), key.begin() + (nprobe - 1), key.end());
-      const auto nearest = std::min_element(key.begin(), key.begin() + nprobe);
-      for (int p = 0; p < nprobe; ++p) {
-        const Visit v{i, static_cast<uint32_t>(key[p] >> 32)};
-        (key.begin() + p == nearest ? first : rest)[static_cast<uint32_t>(key[p])].push_back(v);
-      }
+  std::vector<uint32_t> centre_dist(nlist);
+  std::vector<uint64_t> key(nlist);
+  for (int i = 0; i < q.rows; ++i) {
+    HammingAll(pq.data() + static_cast<size_t>(i) * chunks_, coarse_packed_.data(), nlist, chunks_,
+               centre_dist.data());
+    for (int c = 0; c < nlist; ++c)
+      key[c] = (static_cast<uint64_t>(centre_dist[c]) << 32) | static_cast<uint32_t>(c);
+    if (nprobe < nlist) std::nth_element(key.begin(), key.begin() + (nprobe - 1), key.end());
+    const auto nearest = std::min_element(key.begin(), key.begin() + nprobe);
+    for (int p = 0; p < nprobe; ++p) {
+      const Visit v{i, static_cast<uint32_t>(key[p] >> 32)};
+      (key.begin() + p == nearest ? first : rest)[static_cast<uint32_t>(key[p])].push_back(v);
     }
   }
   // Each list's words are read once for all the descriptors that probe it: the nearest lists

@@ -140,22 +140,21 @@ std::string ToJson(const EvalArgs& a, const Dataset& ds, const std::vector<Prese
     j.Key("queries").Int(static_cast<long long>(pr.timed));
     j.Key("kernels").Open('{').Key("hamming").Str(ActiveHammingKernelName());
     j.Key("l2_bytes").Str(ActiveByteDistanceKernelName()).Close('}');
-    WriteStat(j, "feature_extraction", pr.extract);
-    WriteStat(j, "bow_transform", pr.transform);
-    WriteStat(j, "database_insertion", pr.insert);
-    WriteStat(j, "database_query", pr.query);
-    WriteStat(j, "pose_estimation", pr.pose);
-    WriteStat(j, "end_to_end", pr.total);
+    // The stages of PresetResult and of each KernelTiming.
+    auto stages = [&j](const auto& t) {
+      WriteStat(j, "feature_extraction", t.extract);
+      WriteStat(j, "bow_transform", t.transform);
+      WriteStat(j, "database_insertion", t.insert);
+      WriteStat(j, "database_query", t.query);
+      WriteStat(j, "pose_estimation", t.pose);
+      WriteStat(j, "end_to_end", t.total);
+    };
+    stages(pr);
     j.Key("by_kernel").Open('[');
     for (const auto& k : pr.by_kernel) {
       j.Open('{').Key("requested").Str(k.requested).Key("hamming").Str(k.hamming);
       j.Key("l2_bytes").Str(k.l2_bytes);
-      WriteStat(j, "feature_extraction", k.extract);
-      WriteStat(j, "bow_transform", k.transform);
-      WriteStat(j, "database_insertion", k.insert);
-      WriteStat(j, "database_query", k.query);
-      WriteStat(j, "pose_estimation", k.pose);
-      WriteStat(j, "end_to_end", k.total);
+      stages(k);
       j.Close('}');
     }
     j.Close(']');

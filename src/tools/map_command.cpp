@@ -36,12 +36,10 @@ void PrintInfo(const std::string& path) {
       i.vocabulary_path.c_str(), i.meters_per_pixel);
 }
 
-// Every keyframe's id, stamp and pose (map frame), as CSV: loads the map with the vocabulary it
-// names (or `vocab`).
-void WritePoses(const std::string& path, const std::string& vocab, const std::string& out) {
-  const MapFileInfo info = Localizer::ReadMapInfo(path);
-  if (info.version != 2)
-    throw std::invalid_argument(path + ": convert it first (gtbow convert-map)");
+// A localizer for the map `path` (header `info`): the map's preset and scale, with the
+// vocabulary it names or `vocab`.
+std::unique_ptr<Localizer> LocalizerFor(const std::string& path, const MapFileInfo& info,
+                                        const std::string& vocab, bool keep_descriptors) {
   const std::string vocab_path = vocab.empty() ? info.vocabulary_path : vocab;
   std::shared_ptr<Vocabulary> v;
   try {
@@ -53,19 +51,27 @@ void WritePoses(const std::string& path, const std::string& vocab, const std::st
   LocalizerOptions o;
   o.retrieval = ParseRetrievalConfig(info.retrieval_config, path + " (its preset)");
   o.meters_per_pixel = info.meters_per_pixel;
-  o.keep_descriptors = info.descriptors;
-  Localizer loc(v, vocab_path, o);
-  loc.Load(path);
+  o.keep_descriptors = keep_descriptors;
+  return std::make_unique<Localizer>(v, vocab_path, o);
+}
+
+// Every keyframe's id, stamp and pose (map frame), as CSV.
+void WritePoses(const std::string& path, const std::string& vocab, const std::string& out) {
+  const MapFileInfo info = Localizer::ReadMapInfo(path);
+  if (info.version != 2)
+    throw std::invalid_argument(path + ": convert it first (gtbow convert-map)");
+  const auto loc = LocalizerFor(path, info, vocab, info.descriptors);
+  loc->Load(path);
   std::string csv = "id,stamp,has_pose,x,y,theta\n";
   char line[160];
-  for (const Keyframe& k : loc.Keyframes()) {
+  for (const Keyframe& k : loc->Keyframes()) {
     std::snprintf(line, sizeof(line), "%u,%.9f,%d,%.9g,%.9g,%.9g\n", k.id, k.stamp_ns * 1e-9,
                   k.has_pose ? 1 : 0, k.map_from_camera.x, k.map_from_camera.y,
                   k.map_from_camera.theta);
     csv += line;
   }
   WriteFileAtomic(out, csv);
-  std::printf("  poses           %zu keyframes written to %s\n", loc.size(), out.c_str());
+  std::printf("  poses           %zu keyframes written to %s\n", loc->size(), out.c_str());
 }
 
 void Convert(const ConvertArgs& a) {
@@ -77,21 +83,9 @@ void Convert(const ConvertArgs& a) {
     throw std::invalid_argument(a.in + " is already format version " +
                                 std::to_string(info.version) + "; nothing to convert");
   }
-  const std::string vocab_path = a.vocab.empty() ? info.vocabulary_path : a.vocab;
-  std::shared_ptr<Vocabulary> vocab;
-  try {
-    vocab = Vocabulary::Load(vocab_path);
-  } catch (const std::exception& e) {
-    throw std::runtime_error(std::string(e.what()) +
-                             " (the map's vocabulary; give another path with --vocab)");
-  }
-  LocalizerOptions o;
-  o.retrieval = ParseRetrievalConfig(info.retrieval_config, a.in + " (its preset)");
-  o.meters_per_pixel = info.meters_per_pixel;
-  o.keep_descriptors = !a.drop_descriptors;
-  Localizer loc(vocab, vocab_path, o);
-  loc.ImportVersion1(a.in);
-  loc.Save(a.out);
+  const auto loc = LocalizerFor(a.in, info, a.vocab, !a.drop_descriptors);
+  loc->ImportVersion1(a.in);
+  loc->Save(a.out);
   PrintInfo(a.out);
 }
 
