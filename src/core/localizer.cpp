@@ -41,7 +41,8 @@ Localizer::Localizer(std::shared_ptr<Vocabulary> vocabulary, std::string vocabul
                      const LocalizerOptions& options)
     : vocabulary_(std::move(vocabulary)),
       vocabulary_path_(std::move(vocabulary_path)),
-      options_(options) {
+      options_(options),
+      meters_per_pixel_(options.meters_per_pixel) {
   if (!vocabulary_) throw std::invalid_argument("Localizer: no vocabulary");
   options_.Check();
   // The extractor first: a preset for other features (SIFT, say) also asks for another metric,
@@ -89,7 +90,7 @@ std::unique_ptr<detail::KeyframeStore> Localizer::NewStore() const {
 }
 
 ImageGeometry Localizer::GeometryOf(int width, int height) const {
-  return {width, height, options_.meters_per_pixel};
+  return {width, height, meters_per_pixel()};
 }
 
 ProcessedImage Localizer::Process(const cv::Mat& gray) const {
@@ -292,6 +293,21 @@ void Localizer::Reset() {
   keyframes_.swap(store);
   ++generation_;
   lock.unlock();  // the old map is freed without holding up callers
+}
+
+void Localizer::SetMetersPerPixel(double meters_per_pixel) {
+  if (!(meters_per_pixel > 0.0) || !std::isfinite(meters_per_pixel)) {
+    throw std::invalid_argument("meters_per_pixel must be positive and finite, not " +
+                                std::to_string(meters_per_pixel));
+  }
+  std::unique_lock<std::shared_mutex> lock(mutex_);
+  if (meters_per_pixel == meters_per_pixel_.load()) return;
+  if (keyframes_->size() > 0) {
+    throw std::logic_error("the map holds " + std::to_string(keyframes_->size()) +
+                           " keyframes made at " + std::to_string(meters_per_pixel_.load()) +
+                           " m/px; its scale cannot change to " + std::to_string(meters_per_pixel));
+  }
+  meters_per_pixel_ = meters_per_pixel;
 }
 
 size_t Localizer::size() const {

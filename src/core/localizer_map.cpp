@@ -200,7 +200,8 @@ MapFileInfo ParseHeader(const char* d, size_t size, const std::string& source, L
 
 }  // namespace
 
-void Localizer::CheckHeader(const MapFileInfo& info, const std::string& source) const {
+void Localizer::CheckHeader(const MapFileInfo& info, const std::string& source,
+                            bool adopt_scale) const {
   auto fail = [&source](const std::string& what) {
     throw std::runtime_error(source + ": " + what);
   };
@@ -224,9 +225,12 @@ void Localizer::CheckHeader(const MapFileInfo& info, const std::string& source) 
       fail("the map was built with other retrieval options (another preset or extractor): " + diff);
     }
   }
-  if (info.meters_per_pixel != options_.meters_per_pixel) {
+  if (!adopt_scale && info.meters_per_pixel != meters_per_pixel()) {
     fail("the map was built with meters_per_pixel " + std::to_string(info.meters_per_pixel) +
-         ", this node uses " + std::to_string(options_.meters_per_pixel));
+         ", this node uses " + std::to_string(meters_per_pixel()));
+  }
+  if (!(info.meters_per_pixel > 0) || !std::isfinite(info.meters_per_pixel)) {
+    fail("the map's meters_per_pixel is not positive and finite");
   }
   if (info.version >= kMapVersion && info.descriptors != options_.keep_descriptors) {
     fail(std::string("the map ") + (info.descriptors ? "keeps" : "keeps no") +
@@ -246,6 +250,7 @@ SaveStats Localizer::Save(const std::filesystem::path& path) const {
   BowDatabase::Frozen frozen;
   std::vector<std::shared_ptr<const detail::KeyframeSegment>> segments;
   uint64_t generation = 0;
+  double scale = 0;
   for (bool sealed = false; !sealed;) {
     {
       std::shared_lock<std::shared_mutex> lock(mutex_);
@@ -260,6 +265,7 @@ SaveStats Localizer::Save(const std::filesystem::path& path) const {
     db->Freeze(&frozen);
     segments = keyframes_->Freeze();
     generation = generation_;
+    scale = meters_per_pixel();  // the scale of the keyframes sealed
     stats.seal_ms = ms(t0, Clock::now());
     sealed = true;
   }
@@ -287,7 +293,7 @@ SaveStats Localizer::Save(const std::filesystem::path& path) const {
     h.PutString(vocabulary_path_);
     h.Put<uint64_t>(vocabulary_->fingerprint());
     h.PutString(FormatRetrievalConfig(options_.retrieval));
-    h.Put<double>(options_.meters_per_pixel);
+    h.Put<double>(scale);
     h.Put<uint64_t>(n);
     h.Put<uint8_t>(options_.keep_descriptors ? 1 : 0);
     h.Put<uint32_t>(static_cast<uint32_t>(stride));
@@ -425,14 +431,14 @@ std::string Localizer::VocabularyPathOf(const std::filesystem::path& path) {
   return ReadMapInfo(path).vocabulary_path;
 }
 
-size_t Localizer::Load(const std::filesystem::path& path) {
+size_t Localizer::Load(const std::filesystem::path& path, bool adopt_scale) {
   const std::string source = path.string();
   const auto map = MappedFile::Open(path);
   const char* d = map->data();
   Layout l;
   uint32_t stride = 0;
   const MapFileInfo info = ParseHeader(d, map->size(), source, &l, &stride);
-  CheckHeader(info, source);
+  CheckHeader(info, source, adopt_scale);
   if (stride != PayloadStride()) {
     throw std::runtime_error(source + ": the map's keyframes hold " + std::to_string(stride) +
                              " bytes per keypoint, this node's features " +
@@ -500,6 +506,7 @@ size_t Localizer::Load(const std::filesystem::path& path) {
   std::unique_lock<std::shared_mutex> lock(mutex_);
   database_.swap(db);
   keyframes_.swap(store);
+  if (adopt_scale) meters_per_pixel_ = info.meters_per_pixel;
   ++generation_;
   lock.unlock();  // the old map is freed without holding up callers
   return info.keyframes;
@@ -515,7 +522,7 @@ void Localizer::ImportVersion1(const std::filesystem::path& path) {
   info.vocabulary_fingerprint = r.Get<uint64_t>();
   info.retrieval_config = r.GetString(1u << 20);
   info.meters_per_pixel = r.Get<double>();
-  CheckHeader(info, source);
+  CheckHeader(info, source, false);
   const std::string db_blob = r.GetString(payload.size());
   std::shared_ptr<BowDatabase> db = NewDatabase();
   db->Deserialize(db_blob.data(), db_blob.size(), source + " (database)");

@@ -18,19 +18,17 @@ cv::Mat ToFloorImage(const sensor_msgs::Image& msg) {
                                 std::to_string(msg.height) + ")");
   }
   const std::string& e = msg.encoding;
-  int channels = 0, depth_bytes = 1;
-  if (e == enc::MONO8) {
-    channels = 1;
-  } else if (e == enc::MONO16) {
-    channels = 1;
-    depth_bytes = 2;
-  } else if (e == enc::BGR8 || e == enc::RGB8) {
-    channels = 3;
-  } else if (e == enc::BGRA8 || e == enc::RGBA8) {
-    channels = 4;
-  } else {
+  const bool known = enc::isMono(e) || enc::isColor(e) || enc::isBayer(e) || e == enc::YUV422 ||
+                     e == "yuv422_yuy2";
+  int channels = 0, depth_bytes = 0;
+  if (known) {
+    channels = enc::numChannels(e);
+    depth_bytes = enc::bitDepth(e) / 8;
+  }
+  if (channels <= 0 || depth_bytes <= 0) {
     throw std::invalid_argument("unsupported encoding '" + e +
-                                "' (mono8, mono16, bgr8, rgb8, bgra8 or rgba8 expected)");
+                                "' (mono8, mono16, bgr8, rgb8, bgra8, rgba8, or another that "
+                                "cv_bridge converts to mono8: Bayer, yuv422, 16-bit colour)");
   }
   const size_t row = static_cast<size_t>(msg.width) * channels * depth_bytes;
   if (msg.step < row || msg.data.size() < static_cast<size_t>(msg.step) * (msg.height - 1) + row) {
@@ -39,22 +37,17 @@ cv::Mat ToFloorImage(const sensor_msgs::Image& msg) {
                                 std::to_string(msg.width) + "x" + std::to_string(msg.height) + " " +
                                 e);
   }
-  cv_bridge::CvImageConstPtr cv = cv_bridge::toCvShare(
-      boost::shared_ptr<const sensor_msgs::Image>(&msg, [](const sensor_msgs::Image*) {}), e);
+  const boost::shared_ptr<const sensor_msgs::Image> view(&msg, [](const sensor_msgs::Image*) {});
   cv::Mat gray;
-  const cv::Mat& in = cv->image;
-  if (e == enc::MONO8) {
-    gray = in;
-  } else if (e == enc::MONO16) {
-    in.convertTo(gray, CV_8U, 1.0 / 256.0);
-  } else if (e == enc::BGR8) {
-    cv::cvtColor(in, gray, cv::COLOR_BGR2GRAY);
-  } else if (e == enc::RGB8) {
-    cv::cvtColor(in, gray, cv::COLOR_RGB2GRAY);
-  } else if (e == enc::BGRA8) {
-    cv::cvtColor(in, gray, cv::COLOR_BGRA2GRAY);
+  if (e == enc::MONO16) {
+    // Scaled, not clipped: a 16-bit camera's full range onto 8 bits.
+    cv_bridge::toCvShare(view, e)->image.convertTo(gray, CV_8U, 1.0 / 256.0);
   } else {
-    cv::cvtColor(in, gray, cv::COLOR_RGBA2GRAY);
+    try {
+      gray = cv_bridge::toCvShare(view, enc::MONO8)->image;
+    } catch (const std::exception& ex) {  // cv_bridge::Exception, cv::Exception
+      throw std::invalid_argument("cannot convert encoding '" + e + "' to mono8: " + ex.what());
+    }
   }
   cv::Mat flipped;
   cv::flip(gray, flipped, 0);  // optical frame -> floor seen from above (always a new buffer)
@@ -210,6 +203,70 @@ ground_texture_bow::Candidate ToCandidateMsg(const gtbow::Candidate& c) {
     m.reason = c.relative.reason;
   }
   return m;
+}
+
+double MetersPerPixelFromCameraInfo(const sensor_msgs::CameraInfo& info, double height) {
+  if (!(height > 0) || !std::isfinite(height)) {
+    throw std::invalid_argument("the camera's height above the floor (" + std::to_string(height) +
+                                " m) is not positive");
+  }
+  const double bx = info.binning_x > 1 ? info.binning_x : 1.0;
+  const double by = info.binning_y > 1 ? info.binning_y : 1.0;
+  const double fx = info.K[0] / bx, fy = info.K[4] / by;
+  if (!(fx > 0) || !(fy > 0) || !std::isfinite(fx) || !std::isfinite(fy)) {
+    throw std::invalid_argument(
+        "camera_info has no focal length (K[0] = " + std::to_string(info.K[0]) +
+        ", K[4] = " + std::to_string(info.K[4]) + "): is the camera calibrated?");
+  }
+  if (std::abs(fx - fy) > 0.01 * std::max(fx, fy)) {
+    throw std::invalid_argument("camera_info's pixels are not square (fx " + std::to_string(fx) +
+                                ", fy " + std::to_string(fy) +
+                                "): the floor's scale would differ along u and v");
+  }
+  return height / (0.5 * (fx + fy));
+}
+
+bool HasDistortion(const sensor_msgs::CameraInfo& info) {
+  for (double d : info.D) {
+    if (d != 0.0) return true;
+  }
+  return false;
+}
+
+std::array<double, 9> FlooredCovariance(const std::array<double, 9>& c, double min_position,
+                                        double min_yaw) {
+  std::array<double, 9> out = c;
+  out[0] = std::max(out[0], min_position);
+  out[4] = std::max(out[4], min_position);
+  out[8] = std::max(out[8], min_yaw);
+  return out;
+}
+
+BasePose BaseFromCamera(const gtbow::Pose2D& map_from_camera, const std::array<double, 9>& c,
+                        const gtbow::Pose2D& base_from_camera) {
+  const gtbow::Pose2D camera_from_base = gtbow::Inverse(base_from_camera);
+  BasePose out;
+  out.pose = gtbow::Compose(map_from_camera, camera_from_base);
+  // d(base)/d(camera): the base moves with the camera's translation, and swings about it with
+  // the camera's yaw by the lever arm R(theta) t.
+  const double ct = std::cos(map_from_camera.theta), st = std::sin(map_from_camera.theta);
+  const double tx = camera_from_base.x, ty = camera_from_base.y;
+  const double j[9] = {1, 0, -st * tx - ct * ty, 0, 1, ct * tx - st * ty, 0, 0, 1};
+  double jc[9];
+  for (int r = 0; r < 3; ++r) {
+    for (int k = 0; k < 3; ++k) {
+      jc[3 * r + k] = 0;
+      for (int m = 0; m < 3; ++m) jc[3 * r + k] += j[3 * r + m] * c[3 * m + k];
+    }
+  }
+  for (int r = 0; r < 3; ++r) {
+    for (int k = 0; k < 3; ++k) {
+      double v = 0;
+      for (int m = 0; m < 3; ++m) v += jc[3 * r + m] * j[3 * k + m];
+      out.covariance[3 * r + k] = v;
+    }
+  }
+  return out;
 }
 
 ground_texture_bow::Status MakeStatus(uint8_t code, const std::string& message) {

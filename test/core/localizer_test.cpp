@@ -300,6 +300,47 @@ TEST_F(LocalizerFiles, SavedMapsLoadAndAnswerIdentically) {
   EXPECT_EQ(fresh.QueryKeyframe(7, 3, false)[0].id, by_id_before);
 }
 
+// A node that learns its scale from the camera: set while the map is empty, saved with the
+// map, adopted by a node that loads it with adopt_scale, and refused otherwise.
+TEST_F(LocalizerFiles, TheScaleIsSetWhileEmptySavedAndAdoptedOnRequest) {
+  const Scene& s = TheScene();
+  const double mpp = Options().meters_per_pixel;
+  LocalizerOptions wrong = Options();
+  wrong.meters_per_pixel = 2 * mpp;
+  Localizer loc(s.vocabulary, "test.gtvoc", wrong);
+  EXPECT_THROW(loc.SetMetersPerPixel(0.0), std::invalid_argument);
+  EXPECT_THROW(loc.SetMetersPerPixel(std::nan("")), std::invalid_argument);
+  loc.SetMetersPerPixel(mpp);
+  EXPECT_EQ(loc.meters_per_pixel(), mpp);
+  for (size_t i = 0; i < s.db_images.size(); ++i) {
+    loc.Add(loc.Process(s.db_images[i]), static_cast<int64_t>(i), s.db_poses[i]);
+  }
+  // Verified at the set scale: a revisit's fix is within the protocol's tolerance (at twice
+  // the scale it would be off by its distance from the keyframe).
+  const Localization fix = loc.Localize(loc.Process(s.revisits[1]));
+  ASSERT_TRUE(fix.success) << fix.reason;
+  EXPECT_LT(1000 * std::hypot(fix.estimate.floor_from_query.x - s.revisit_poses[1].x,
+                              fix.estimate.floor_from_query.y - s.revisit_poses[1].y),
+            4.8);
+  try {
+    loc.SetMetersPerPixel(1.01 * mpp);
+    FAIL() << "the scale of a map with keyframes changed";
+  } catch (const std::logic_error& e) {
+    EXPECT_NE(std::string(e.what()).find("keyframes made at"), std::string::npos) << e.what();
+  }
+  loc.SetMetersPerPixel(mpp);  // the same scale is no change
+  const auto path = dir() / "scaled.gtmap";
+  loc.Save(path);
+  EXPECT_EQ(Localizer::ReadMapInfo(path).meters_per_pixel, mpp);
+  Localizer strict(s.vocabulary, "test.gtvoc", wrong);
+  EXPECT_THROW(strict.Load(path), std::runtime_error);
+  EXPECT_EQ(strict.meters_per_pixel(), 2 * mpp);
+  Localizer adopting(s.vocabulary, "test.gtvoc", wrong);
+  EXPECT_EQ(adopting.Load(path, true), s.db_images.size());
+  EXPECT_EQ(adopting.meters_per_pixel(), mpp);
+  EXPECT_EQ(Describe(adopting.Localize(adopting.Process(s.revisits[1]))), Describe(fix));
+}
+
 TEST_F(LocalizerFiles, DamagedOrForeignMapsAreRefusedAndTheCurrentMapKept) {
   const Scene& s = TheScene();
   const auto loc = Mapped(true);

@@ -55,6 +55,93 @@ TEST(Conversions, ImagesOfEveryEncodingBecomeFlippedGrey) {
   EXPECT_EQ(ToFloorImage(padded).cols, 4);
 }
 
+TEST(Conversions, BayerAndYuvCamerasAreConvertedByCvBridge) {
+  // A uniform grey Bayer mosaic and a grey YUV422 (UYVY: U Y V Y with U = V = 128) image.
+  sensor_msgs::Image bayer = MakeImage("bayer_rggb8", 8, 6, 1);
+  bayer.data.assign(bayer.data.size(), 90);
+  const cv::Mat b = ToFloorImage(bayer);
+  ASSERT_EQ(b.type(), CV_8UC1);
+  EXPECT_EQ(b.cols, 8);
+  EXPECT_NEAR(b.at<uint8_t>(3, 4), 90, 2);
+  sensor_msgs::Image yuv = MakeImage("yuv422", 8, 6, 2);
+  for (size_t i = 0; i < yuv.data.size(); i += 2) {
+    yuv.data[i] = 128;
+    yuv.data[i + 1] = 150;
+  }
+  EXPECT_NEAR(ToFloorImage(yuv).at<uint8_t>(2, 2), 150, 3);
+}
+
+TEST(Conversions, TheScaleComesFromKAndTheHeight) {
+  sensor_msgs::CameraInfo info;
+  info.K = {800, 0, 319.5, 0, 800, 239.5, 0, 0, 1};
+  EXPECT_DOUBLE_EQ(MetersPerPixelFromCameraInfo(info, 0.2), 0.00025);
+  info.binning_x = info.binning_y = 2;  // binned pixels are twice as large
+  EXPECT_DOUBLE_EQ(MetersPerPixelFromCameraInfo(info, 0.2), 0.0005);
+  info.binning_x = info.binning_y = 0;
+  auto expect_reason = [](const sensor_msgs::CameraInfo& i, double h, const std::string& what) {
+    try {
+      MetersPerPixelFromCameraInfo(i, h);
+      ADD_FAILURE() << "accepted: " << what;
+    } catch (const std::invalid_argument& e) {
+      EXPECT_NE(std::string(e.what()).find(what), std::string::npos) << e.what();
+    }
+  };
+  expect_reason(info, 0.0, "height");
+  sensor_msgs::CameraInfo uncalibrated;
+  expect_reason(uncalibrated, 0.2, "calibrated");
+  sensor_msgs::CameraInfo stretched = info;
+  stretched.K[4] = 830;
+  expect_reason(stretched, 0.2, "not square");
+  EXPECT_FALSE(HasDistortion(info));
+  info.D = {-0.2, 0.05, 0, 0, 0};
+  EXPECT_TRUE(HasDistortion(info));
+}
+
+TEST(Conversions, BasePosesCarryTheCovarianceThroughTheLeverArm) {
+  // The camera 15 cm ahead of the base and turned 90 degrees; the camera at (1, 2), yaw 0.3.
+  const gtbow::Pose2D base_from_camera{0.15, 0.0, M_PI / 2};
+  const gtbow::Pose2D camera{1.0, 2.0, 0.3};
+  const std::array<double, 9> c = {1e-6, 0, 0, 0, 1e-6, 0, 0, 0, 1e-4};
+  const BasePose b = BaseFromCamera(camera, c, base_from_camera);
+  // The base is 15 cm behind the camera along the base's x axis, which is the camera's yaw
+  // minus 90 degrees.
+  const double yaw = 0.3 - M_PI / 2;
+  EXPECT_NEAR(b.pose.x, 1.0 - 0.15 * std::cos(yaw), 1e-12);
+  EXPECT_NEAR(b.pose.y, 2.0 - 0.15 * std::sin(yaw), 1e-12);
+  EXPECT_NEAR(b.pose.theta, yaw, 1e-12);
+  // Composing back gives the camera.
+  const gtbow::Pose2D back = gtbow::Compose(b.pose, base_from_camera);
+  EXPECT_NEAR(back.x, 1.0, 1e-12);
+  EXPECT_NEAR(back.y, 2.0, 1e-12);
+  // The yaw's variance swings the base by the 15 cm lever: 1e-6 + 0.15^2 * 1e-4 in total.
+  EXPECT_NEAR(b.covariance[0] + b.covariance[4], 2e-6 + 0.0225 * 1e-4, 1e-12);
+  EXPECT_DOUBLE_EQ(b.covariance[8], 1e-4);
+  // Against a numerical Jacobian.
+  const double h = 1e-6;
+  double j[3][3];
+  for (int k = 0; k < 3; ++k) {
+    gtbow::Pose2D p = camera;
+    (k == 0 ? p.x : k == 1 ? p.y : p.theta) += h;
+    const gtbow::Pose2D q = BaseFromCamera(p, c, base_from_camera).pose;
+    j[0][k] = (q.x - b.pose.x) / h;
+    j[1][k] = (q.y - b.pose.y) / h;
+    j[2][k] = (q.theta - b.pose.theta) / h;
+  }
+  for (int r = 0; r < 3; ++r) {
+    for (int k = 0; k < 3; ++k) {
+      double v = 0;
+      for (int m = 0; m < 3; ++m) v += j[r][m] * c[3 * m + m] * j[k][m];
+      EXPECT_NEAR(b.covariance[3 * r + k], v, 1e-9) << r << "," << k;
+    }
+  }
+  // Floors raise the diagonal only.
+  const auto f = FlooredCovariance({1e-9, 5e-10, 0, 5e-10, 1e-9, 0, 0, 0, 1e-9}, 1e-6, 3e-6);
+  EXPECT_EQ(f[0], 1e-6);
+  EXPECT_EQ(f[4], 1e-6);
+  EXPECT_EQ(f[8], 3e-6);
+  EXPECT_EQ(f[1], 5e-10);
+}
+
 TEST(Conversions, BadImagesAreRejectedWithTheReason) {
   auto expect_reason = [](const sensor_msgs::Image& m, const std::string& what) {
     try {

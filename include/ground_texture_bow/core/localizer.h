@@ -12,6 +12,7 @@
 #pragma once
 
 #include <array>
+#include <atomic>
 #include <cstdint>
 #include <filesystem>
 #include <memory>
@@ -180,8 +181,10 @@ class Localizer {
   // keyframes go to a growable tail). Throws std::runtime_error naming the file when it is
   // damaged, of another version (a version-1 map: the message says how to convert it), or made
   // with another vocabulary, other BoW options or another keep_descriptors; the current map is
-  // kept then. Returns the keyframes loaded.
-  size_t Load(const std::filesystem::path& path);
+  // kept then. Returns the keyframes loaded. With `adopt_scale`, the map's meters_per_pixel
+  // replaces this localizer's instead of having to equal it (a node whose scale comes from
+  // the map or the camera, checked against the map's by the caller).
+  size_t Load(const std::filesystem::path& path, bool adopt_scale = false);
   // Replaces the map with a version-1 map file (before issue 17), read whole into the heap; for
   // gtbow convert-map (load it, then Save). Load's checks otherwise.
   void ImportVersion1(const std::filesystem::path& path);
@@ -192,11 +195,20 @@ class Localizer {
 
   void Reset();  // forgets every keyframe
 
+  // The ground sampling distance images are verified with and maps are saved with: the
+  // options' until SetMetersPerPixel or Load(..., adopt_scale) changes it.
+  double meters_per_pixel() const { return meters_per_pixel_.load(); }
+  // Sets it while the map is empty (a node that learns its scale from the camera's first
+  // camera_info). Throws std::invalid_argument for a value that is not positive and finite, and
+  // std::logic_error when keyframes made at another scale are in the map.
+  void SetMetersPerPixel(double meters_per_pixel);
+
   size_t size() const;                                      // keyframes
   std::optional<Keyframe> KeyframeInfo(uint32_t id) const;  // a copy
   std::vector<Keyframe> Keyframes() const;                  // every keyframe, without features
   const Vocabulary& vocabulary() const { return *vocabulary_; }
   const std::string& vocabulary_path() const { return vocabulary_path_; }
+  // The options it was made with (meters_per_pixel: see meters_per_pixel()).
   const LocalizerOptions& options() const { return options_; }
   // Bytes of the map in the heap (index, keyframe records and payloads); a loaded map's
   // memory-mapped part is not counted.
@@ -220,7 +232,7 @@ class Localizer {
   std::unique_ptr<detail::KeyframeStore> NewStore() const;
   size_t PayloadStride() const;
   // Parses and checks a version-2 file's header against this localizer; returns the mapping.
-  void CheckHeader(const MapFileInfo& info, const std::string& source) const;
+  void CheckHeader(const MapFileInfo& info, const std::string& source, bool adopt_scale) const;
 
   std::shared_ptr<Vocabulary> vocabulary_;
   std::string vocabulary_path_;
@@ -233,6 +245,7 @@ class Localizer {
   mutable std::shared_mutex mutex_;        // guards database_, keyframes_ and generation_
   std::shared_ptr<BowDatabase> database_;  // guarded by mutex_ (a save keeps its own reference)
   std::unique_ptr<detail::KeyframeStore> keyframes_;  // by id; guarded by mutex_
+  std::atomic<double> meters_per_pixel_;              // set with mutex_ held; read anywhere
   uint64_t generation_ = 0;  // bumped by Load, ImportVersion1 and Reset; guarded by mutex_
 };
 

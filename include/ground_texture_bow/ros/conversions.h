@@ -17,6 +17,7 @@
 #include <geometry_msgs/PoseWithCovarianceStamped.h>
 #include <geometry_msgs/Transform.h>
 #include <ros/time.h>
+#include <sensor_msgs/CameraInfo.h>
 #include <sensor_msgs/CompressedImage.h>
 #include <sensor_msgs/Image.h>
 #include <opencv2/core.hpp>
@@ -29,7 +30,8 @@
 namespace gtbow_ros {
 
 // The core's view of an image message: 8-bit grey, flipped upside down (see above). Accepts
-// mono8, mono16, bgr8, rgb8, bgra8 and rgba8 (raw or decoded from compressed transport). Throws
+// mono8, mono16, bgr8, rgb8, bgra8 and rgba8, and every other encoding cv_bridge converts to
+// mono8 (Bayer, YUV422, 16-bit colour; raw or decoded from compressed transport). Throws
 // std::invalid_argument naming the problem: unsupported encoding, empty image, inconsistent
 // step or data size.
 cv::Mat ToFloorImage(const sensor_msgs::Image& msg);
@@ -60,6 +62,31 @@ gtbow::Pose2D FromPose2DMsg(const geometry_msgs::Pose2D& msg);  // throws for no
 geometry_msgs::PoseWithCovarianceStamped ToPoseWithCovariance(
     const gtbow::Pose2D& pose, const std::array<double, 9>& covariance, const ros::Time& stamp,
     const std::string& frame_id, double planar_variance = 1e-9);
+
+// The ground sampling distance (metres per pixel) of a downward camera at `height` metres above
+// the floor: height / f, with f the focal length in pixels of K (divided by the binning).
+// Throws std::invalid_argument naming the problem: no K (all zero, as an uncalibrated driver
+// sends), pixels that are not square (fx and fy more than 1% apart), or a height that is not
+// positive.
+double MetersPerPixelFromCameraInfo(const sensor_msgs::CameraInfo& info, double height);
+
+// Whether the camera_info's distortion is other than none (all coefficients zero).
+bool HasDistortion(const sensor_msgs::CameraInfo& info);
+
+// A fix's 3x3 (x, y, yaw) covariance with its diagonal raised to at least the floors: RANSAC's
+// own value is sub-millimetre, which a filter would trust more than any fix deserves.
+std::array<double, 9> FlooredCovariance(const std::array<double, 9>& covariance,
+                                        double min_position_variance, double min_yaw_variance);
+
+// A robot base's pose from its camera's: map_from_base = map_from_camera * base_from_camera^-1
+// (camera footprints, geometry.h), and the covariance carried through the lever arm, J C J^T.
+struct BasePose {
+  gtbow::Pose2D pose;
+  std::array<double, 9> covariance{};
+};
+BasePose BaseFromCamera(const gtbow::Pose2D& map_from_camera,
+                        const std::array<double, 9>& covariance,
+                        const gtbow::Pose2D& base_from_camera);
 
 // Nanoseconds since the epoch and back.
 int64_t ToNanoseconds(const ros::Time& t);
