@@ -24,7 +24,10 @@ echo "== 1. floor"
 echo "== 2. vocabulary"
 "$gtbow" train-vocab --dataset "$out/floor" --words 3000 --out "$out/floor.gtvoc" -q
 "$ws/devel/bin/gtbow_images_to_bag" --dataset "$out/floor" --split database --out "$out/mapping.bag" -q
+# Day 180 without TF to the map: the robot must localize globally. Its camera hangs from
+# base_link (a static mount straight above the footprint, as robot_state_publisher would send).
 "$ws/devel/bin/gtbow_images_to_bag" --dataset "$out/floor" --split query_day180 --no-tf \
+  --camera-offset 0 0 0 \
   --out "$out/day180.bag" -q
 
 source "$here/private_roscore.sh" "$out"  # a private ROS master; pids, cleanup

@@ -1,6 +1,8 @@
 // gtbow_images_to_bag: any dataset (docs/DATASET_FORMAT.md) as a rosbag a robot would have
 // recorded: the images of one split on a camera topic, in sequence order, and the camera's
-// ground-truth pose as TF (map -> camera optical frame) and as a PoseStamped topic.
+// ground-truth pose as TF (map -> camera optical frame) and as a PoseStamped topic, and the
+// camera's sensor_msgs/CameraInfo (a pinhole looking down from --height, whose focal length
+// gives the dataset's meters_per_pixel).
 //
 // With --odometry (a drive from `gtbow synth --drive`), the robot's wheel odometry replaces the
 // ground-truth TF: nav_msgs/Odometry on --odom-topic and TF odom -> base_link at each image
@@ -8,6 +10,8 @@
 // --camera-offset; the ground truth stays on the PoseStamped topic only (TF allows one parent
 // per frame). base_link lies on the floor (z = 0) and the odometry CSV holds the camera's
 // footprint, so the base's odometry pose is odom_from_camera * camera_offset^-1.
+// With --camera-offset alone, the same static mount, and the ground-truth TF is map -> base_link
+// (none with --no-tf): a robot whose ~pose is its base's.
 //
 // The camera is a downward optical frame (x = image right, y = image down, z down onto the
 // floor), so it sees the floor mirrored with respect to the dataset's floor frame (which, like
@@ -22,8 +26,10 @@
 #include <vector>
 
 #include <geometry_msgs/PoseStamped.h>
+#include <image_transport/camera_common.h>
 #include <nav_msgs/Odometry.h>
 #include <rosbag/bag.h>
+#include <sensor_msgs/CameraInfo.h>
 #include <sensor_msgs/Image.h>
 #include <sensor_msgs/image_encodings.h>
 #include <tf2_msgs/TFMessage.h>
@@ -56,11 +62,13 @@ struct BagArgs {
   size_t max_images = 0;
   bool no_tf = false;
   bool quiet = false;
+  bool no_camera_info = false;
   std::string odometry;  // drive_odometry.csv (poses.csv columns): odometry instead of truth TF
   std::string odom_frame = "odom";
   std::string base_frame = "base_link";
   std::string odom_topic = "/odom";
   std::vector<double> camera_offset = {0.0, 0.0, 0.0};  // camera footprint in base_link
+  bool mount = false;  // --camera-offset given (or --odometry): a base_link -> camera mount
 };
 
 sensor_msgs::Image ToMessage(const cv::Mat& gray_floor_view, const std::string& encoding) {
@@ -85,6 +93,22 @@ sensor_msgs::Image ToMessage(const cv::Mat& gray_floor_view, const std::string& 
     std::memcpy(&m.data[r * m.step], img.ptr(r), m.step);
   }
   return m;
+}
+
+// The camera_info of a pinhole camera without distortion looking straight down from `height`:
+// focal length height / meters_per_pixel, principal point at the image centre (the core's).
+sensor_msgs::CameraInfo CameraInfoOf(const ImageGeometry& g, double height) {
+  sensor_msgs::CameraInfo c;
+  c.width = static_cast<uint32_t>(g.width);
+  c.height = static_cast<uint32_t>(g.height);
+  const double f = height / g.meters_per_pixel;
+  const double cx = 0.5 * (g.width - 1), cy = 0.5 * (g.height - 1);
+  c.distortion_model = "plumb_bob";
+  c.D = {0, 0, 0, 0, 0};
+  c.K = {f, 0, cx, 0, f, cy, 0, 0, 1};
+  c.R = {1, 0, 0, 0, 1, 0, 0, 0, 1};
+  c.P = {f, 0, cx, 0, 0, f, cy, 0, 0, 0, 1, 0};
+  return c;
 }
 
 void RunImagesToBag(const BagArgs& a) {
@@ -121,8 +145,10 @@ void RunImagesToBag(const BagArgs& a) {
       throw std::runtime_error("cannot write " + out.string() + ": " + e.what());
     }
     ProgressBar bar("images-to-bag", n, !a.quiet);
+    const std::string info_topic = image_transport::getCameraInfoTopic(a.topic);
+    const sensor_msgs::CameraInfo info = CameraInfoOf(ds.info().geometry, a.height);
     try {
-      if (!odometry.empty()) {
+      if (a.mount || !odometry.empty()) {
         // Latched, like a robot_state_publisher's: rosbag play republishes it latched.
         geometry_msgs::TransformStamped mount;
         mount.header.stamp = ros::Time(a.start);
@@ -173,6 +199,14 @@ void RunImagesToBag(const BagArgs& a) {
           bag.write("/tf", stamp, tf);
         } else if (!a.no_tf) {
           tf2_msgs::TFMessage tf;
+          if (a.mount) {  // the truth of the base; the camera hangs from it
+            const Pose2D base = Compose(pose, Inverse(base_from_camera));
+            t.child_frame_id = a.base_frame;
+            t.transform = geometry_msgs::Transform();
+            t.transform.translation.x = base.x;
+            t.transform.translation.y = base.y;
+            t.transform.rotation = gtbow_ros::QuaternionFromYaw(base.theta);
+          }
           tf.transforms.push_back(t);
           bag.write("/tf", stamp, tf);
         }
@@ -183,6 +217,11 @@ void RunImagesToBag(const BagArgs& a) {
         truth.pose.position.y = pose.y;
         truth.pose.orientation = gtbow_ros::QuaternionFromYaw(pose.theta);
         bag.write(a.truth_topic, stamp, truth);
+        if (!a.no_camera_info) {
+          sensor_msgs::CameraInfo ci = info;
+          ci.header = img.header;
+          bag.write(info_topic, stamp, ci);
+        }
         bag.write(a.topic, stamp, img);
         bar.Add();
       }
@@ -197,15 +236,25 @@ void RunImagesToBag(const BagArgs& a) {
   }
   fs::rename(tmp, out);
   const ImageGeometry& g = ds.info().geometry;
-  const std::string tf_desc =
-      odometry.empty() ? a.map_frame + " -> " + a.frame + (a.no_tf ? " (omitted: --no-tf)" : "")
-                       : a.odom_frame + " -> " + a.base_frame + " (odometry, also on " +
-                             a.odom_topic + ") -> " + a.frame + " (static)";
+  std::string tf_desc;
+  if (!odometry.empty()) {
+    tf_desc = a.odom_frame + " -> " + a.base_frame + " (odometry, also on " + a.odom_topic +
+              ") -> " + a.frame + " (static)";
+  } else if (a.mount) {
+    tf_desc = (a.no_tf ? std::string("(map omitted: --no-tf) ") : a.map_frame + " -> ") +
+              a.base_frame + " -> " + a.frame + " (static)";
+  } else {
+    tf_desc = a.map_frame + " -> " + a.frame + (a.no_tf ? " (omitted: --no-tf)" : "");
+  }
   std::printf(
       "%zu images of split '%s' written to %s\n  %s (%s), TF %s, ground truth %s\n"
-      "  %.1f Hz from t = %.1f s; %dx%d pixels, meters_per_pixel %.6g\n",
+      "  %.1f Hz from t = %.1f s; %dx%d pixels, meters_per_pixel %.6g; %s\n",
       n, a.split.c_str(), out.c_str(), a.topic.c_str(), a.encoding.c_str(), tf_desc.c_str(),
-      a.truth_topic.c_str(), a.rate, a.start, g.width, g.height, g.meters_per_pixel);
+      a.truth_topic.c_str(), a.rate, a.start, g.width, g.height, g.meters_per_pixel,
+      a.no_camera_info ? "no camera_info"
+                       : ("camera_info on " + image_transport::getCameraInfoTopic(a.topic) +
+                          " (f = height / meters_per_pixel)")
+                             .c_str());
 }
 
 }  // namespace
@@ -242,17 +291,23 @@ int main(int argc, char** argv) {
       ->check(CLI::ExistingFile);
   cmd->add_option("--odom-frame", a->odom_frame, "Odometry frame (--odometry)")
       ->capture_default_str();
-  cmd->add_option("--base-frame", a->base_frame, "Robot base frame (--odometry)")
+  cmd->add_option("--base-frame", a->base_frame, "Robot base frame (--odometry, --camera-offset)")
       ->capture_default_str();
   cmd->add_option("--odom-topic", a->odom_topic, "nav_msgs/Odometry topic (--odometry)")
       ->capture_default_str();
   cmd->add_option("--camera-offset", a->camera_offset,
-                  "The camera's footprint in the base frame: X Y YAW (metres, radians; "
-                  "--odometry)")
+                  "The camera's footprint in the base frame: X Y YAW (metres, radians). Writes "
+                  "a static base frame -> camera mount; the ground-truth TF (without --odometry) "
+                  "is then map -> base frame")
       ->expected(3);
+  cmd->add_flag("--no-camera-info", a->no_camera_info,
+                "Omit sensor_msgs/CameraInfo (written by default on the image topic's "
+                "camera_info, with the focal length that --height and the dataset's "
+                "meters_per_pixel give)");
   cmd->add_flag("-q,--quiet", a->quiet, "No progress bar");
   try {
     app.parse(argc, argv);
+    a->mount = cmd->count("--camera-offset") > 0;
     gtbow::RunImagesToBag(*a);
   } catch (const CLI::ParseError& e) {
     return app.exit(e);

@@ -56,7 +56,7 @@ void LocalizerServer::PublishMarkers(const ros::TimerEvent&) {
   for (const auto& k : kfs) {
     if (!k.has_pose) continue;
     const auto corners =
-        gtbow::Footprint(k.map_from_camera, {k.width, k.height, options_.core.meters_per_pixel});
+        gtbow::Footprint(k.map_from_camera, {k.width, k.height, localizer_->meters_per_pixel()});
     for (int i = 0; i < 4; ++i) {
       geometry_msgs::Point a, b;
       a.x = corners[i].x;

@@ -2,9 +2,11 @@
 
 #include <chrono>
 #include <cmath>
+#include <cstdio>
 #include <stdexcept>
 
 #include <geometry_msgs/TransformStamped.h>
+#include <image_transport/camera_common.h>
 #include <visualization_msgs/MarkerArray.h>
 
 #include "ground_texture_bow/CandidateList.h"
@@ -23,16 +25,30 @@ LocalizerServer::LocalizerServer(ros::NodeHandle nh, ros::NodeHandle pnh,
       tf_listener_(tf_buffer_),
       it_(nh),
       updater_(nh, pnh, pnh.getNamespace()),  // named after this nodelet, not its manager
-      mode_(options.mode) {
+      mode_(options.mode),
+      gate_(options.gate) {
   options_.Check();
   std::string vocab_path = options_.vocabulary;
   if (vocab_path.empty()) vocab_path = gtbow::Localizer::VocabularyPathOf(options_.map);
   std::shared_ptr<gtbow::Vocabulary> vocab = gtbow::Vocabulary::Load(vocab_path);
   localizer_ = std::make_unique<gtbow::Localizer>(std::move(vocab), vocab_path, options_.core);
-  if (!options_.map.empty()) localizer_->Load(options_.map);
+  if (options_.meters_per_pixel > 0) {
+    scale_known_ = true;
+    scale_source_ = "~meters_per_pixel";
+  }
+  if (!options_.map.empty()) {
+    // Without ~meters_per_pixel the map's scale is taken, and the camera's checked against it.
+    localizer_->Load(options_.map, options_.meters_per_pixel <= 0);
+    if (!scale_known_) {
+      scale_known_ = true;
+      scale_from_map_ = true;
+      scale_source_ = "the map " + options_.map;
+    }
+  }
   mapper_ = std::make_unique<gtbow::Mapper>(localizer_.get(), options_.mapper);
 
   pose_pub_ = pnh_.advertise<geometry_msgs::PoseWithCovarianceStamped>("pose", 10);
+  camera_pose_pub_ = pnh_.advertise<geometry_msgs::PoseWithCovarianceStamped>("camera_pose", 10);
   loop_pub_ = pnh_.advertise<ground_texture_bow::LoopClosure>("loop_closures", 50);
   candidates_pub_ = pnh_.advertise<ground_texture_bow::CandidateList>("candidates", 10);
   markers_pub_ = pnh_.advertise<visualization_msgs::MarkerArray>("markers", 1, true);
@@ -54,9 +70,19 @@ LocalizerServer::LocalizerServer(ros::NodeHandle nh, ros::NodeHandle pnh,
   diag_timer_ =
       nh_.createTimer(ros::Duration(1.0), [this](const ros::TimerEvent&) { updater_.update(); });
   markers_timer_ = nh_.createTimer(ros::Duration(1.0), &LocalizerServer::PublishMarkers, this);
+  if (options_.publish_tf) {
+    tf_timer_ = nh_.createTimer(ros::Duration(1.0 / options_.tf_rate),
+                                [this](const ros::TimerEvent&) { SendMapToOdom(); });
+  }
+  // amcl's topic, in the node's namespace (remap it like amcl's).
+  initialpose_sub_ = nh_.subscribe("initialpose", 2, &LocalizerServer::InitialPoseCallback, this);
 
   worker_ = std::thread([this] { WorkerLoop(); });
-  // The subscription goes last: callbacks may start at once.
+  // The subscriptions go last: callbacks may start at once. camera_info is subscribed on its
+  // own (not through a CameraSubscriber) so that a camera without one still works with
+  // ~meters_per_pixel set.
+  info_topic_ = image_transport::getCameraInfoTopic(nh_.resolveName("image"));
+  info_sub_ = nh_.subscribe(info_topic_, 2, &LocalizerServer::CameraInfoCallback, this);
   if (options_.transport == "compressed") {
     // Decoded here with OpenCV: Debian ships no compressed image_transport plugin.
     compressed_sub_ = nh_.subscribe(nh_.resolveName("image") + "/compressed", 5,
@@ -64,14 +90,22 @@ LocalizerServer::LocalizerServer(ros::NodeHandle nh, ros::NodeHandle pnh,
   } else {
     image_sub_ = it_.subscribe("image", 5, &LocalizerServer::ImageCallback, this);
   }
-  ROS_INFO("ground_texture_bow: %s mode, %zu keyframes, vocabulary %s (%u words), preset %s",
-           ModeName(mode_).c_str(), localizer_->size(), vocab_path.c_str(),
-           localizer_->vocabulary().size(), options_.preset.c_str());
+  ROS_INFO(
+      "ground_texture_bow: %s mode, %zu keyframes, vocabulary %s (%u words), preset %s, "
+      "scale %s",
+      ModeName(mode_).c_str(), localizer_->size(), vocab_path.c_str(),
+      localizer_->vocabulary().size(), options_.preset.c_str(),
+      scale_known_
+          ? (std::to_string(localizer_->meters_per_pixel()) + " m/px from " + scale_source_).c_str()
+          : ("from camera_info on " + info_topic_).c_str());
 }
 
 LocalizerServer::~LocalizerServer() {
   image_sub_.shutdown();
   compressed_sub_.shutdown();
+  info_sub_.shutdown();
+  initialpose_sub_.shutdown();
+  tf_timer_.stop();
   {
     std::lock_guard<std::mutex> lock(slot_mutex_);
     stop_ = true;
@@ -93,6 +127,189 @@ void LocalizerServer::ImageCallback(const sensor_msgs::ImageConstPtr& msg) {
   Pending p;
   p.raw = msg;
   Enqueue(std::move(p));
+}
+
+void LocalizerServer::CameraInfoCallback(const sensor_msgs::CameraInfoConstPtr& msg) {
+  std::lock_guard<std::mutex> lock(camera_mutex_);
+  camera_info_ = msg;
+}
+
+std::optional<double> LocalizerServer::CameraHeight(const std::string& frame, std::string* source) {
+  if (options_.camera_height > 0) {
+    *source = "~camera_height";
+    return options_.camera_height;
+  }
+  if (auto it = heights_.find(frame); it != heights_.end()) {
+    *source = it->second.second;
+    return it->second.first;
+  }
+  for (const std::string& target : {options_.base_frame, options_.odom_frame, options_.map_frame}) {
+    if (target.empty() || !tf_buffer_._frameExists(target)) continue;
+    try {
+      const auto t = tf_buffer_.lookupTransform(target, frame, ros::Time(0));
+      const double h = t.transform.translation.z;
+      if (!(h > 0)) continue;
+      // The floor is the frame's z = 0 plane (REP-105's base_footprint; map and odom on the
+      // floor): a robot's mount does not change, so the height is kept.
+      heights_[frame] = {h, "TF " + target + " -> " + frame};
+      *source = heights_[frame].second;
+      return h;
+    } catch (const tf2::TransformException&) {
+      continue;
+    }
+  }
+  return std::nullopt;
+}
+
+void LocalizerServer::ResolveScale(const std::string& frame) {
+  if (options_.meters_per_pixel > 0) return;  // explicit
+  sensor_msgs::CameraInfoConstPtr info;
+  {
+    std::lock_guard<std::mutex> lock(camera_mutex_);
+    info = camera_info_;
+  }
+  if (!info) {
+    if (scale_known_) return;  // from the loaded map; nothing to check it against
+    throw std::invalid_argument(
+        "the scale is unknown: ~meters_per_pixel is 0 (take it from the camera) and no "
+        "sensor_msgs/CameraInfo has arrived on " +
+        info_topic_);
+  }
+  std::string height_source;
+  const std::optional<double> height = CameraHeight(frame, &height_source);
+  if (!height) {
+    if (scale_known_) {
+      if (!warned_unchecked_scale_) {
+        ROS_WARN(
+            "ground_texture_bow: the camera's scale cannot be checked against the map's "
+            "(no camera height: set ~camera_height, or publish TF %s -> %s)",
+            options_.base_frame.c_str(), frame.c_str());
+        warned_unchecked_scale_ = true;
+      }
+      return;
+    }
+    throw std::invalid_argument(
+        "the scale is unknown: no camera height (set ~camera_height, or "
+        "publish TF from " +
+        (options_.base_frame.empty() ? options_.map_frame : options_.base_frame) + " to " + frame +
+        ")");
+  }
+  const double s = MetersPerPixelFromCameraInfo(*info, *height);
+  auto describe = [&] {
+    char buf[256];
+    std::snprintf(buf, sizeof(buf), "%.6g m/px (camera_info fx %.2f px, height %.4f m from %s)", s,
+                  info->K[0], *height, height_source.c_str());
+    return std::string(buf);
+  };
+  if (localizer_->size() == 0 && !scale_from_map_) {
+    // An empty map takes the camera's scale (SetMetersPerPixel refuses once keyframes exist).
+    const double before = localizer_->meters_per_pixel();
+    localizer_->SetMetersPerPixel(s);
+    const bool first = !scale_known_.exchange(true);
+    std::lock_guard<std::mutex> lock(state_mutex_);
+    scale_source_ = "camera_info: " + describe();
+    if (first || before != s) ROS_INFO("ground_texture_bow: scale %s", scale_source_.c_str());
+    return;
+  }
+  const double current = localizer_->meters_per_pixel();
+  if (std::abs(s - current) > options_.scale_tolerance * current) {
+    char buf[160];
+    std::snprintf(buf, sizeof(buf),
+                  " differs from the map's %.6g m/px by %.1f%% (more than "
+                  "~scale_tolerance %.1f%%)",
+                  current, 100.0 * std::abs(s / current - 1.0), 100.0 * options_.scale_tolerance);
+    throw std::invalid_argument("the camera's scale " + describe() + buf);
+  }
+}
+
+void LocalizerServer::RequireScale() const {
+  if (!scale_known_) {
+    throw PreconditionFailed(
+        "the scale is not known yet: ~meters_per_pixel is 0 and no image with camera_info (" +
+        info_topic_ + ") and a camera height has arrived; set ~meters_per_pixel or load a map");
+  }
+}
+
+std::optional<gtbow::Pose2D> LocalizerServer::LookupOdometry(const std_msgs::Header& header) {
+  if (!options_.publish_tf && !options_.gate.enabled) return std::nullopt;
+  if (!tf_buffer_._frameExists(options_.odom_frame)) {
+    // No odometry at all: the gate has nothing to check against. map -> odom needs it.
+    if (options_.publish_tf) {
+      missing_tf_++;
+      ROS_WARN_THROTTLE(2.0, "ground_texture_bow: publish_tf is on but frame %s does not exist",
+                        options_.odom_frame.c_str());
+    }
+    return std::nullopt;
+  }
+  return LookupFootprint(header.frame_id, header.stamp, options_.odom_frame, true);
+}
+
+void LocalizerServer::SendMapToOdom() {
+  std::optional<gtbow::Pose2D> c;
+  {
+    std::lock_guard<std::mutex> lock(gate_mutex_);
+    c = gate_.correction();
+  }
+  if (!c || !options_.publish_tf) return;
+  geometry_msgs::TransformStamped t;
+  t.header.stamp = ros::Time::now() + ros::Duration(options_.transform_tolerance);
+  t.header.frame_id = options_.map_frame;
+  t.child_frame_id = options_.odom_frame;
+  t.transform.translation.x = c->x;
+  t.transform.translation.y = c->y;
+  t.transform.rotation = QuaternionFromYaw(c->theta);
+  tf_broadcaster_.sendTransform(t);
+}
+
+void LocalizerServer::InitialPoseCallback(
+    const geometry_msgs::PoseWithCovarianceStampedConstPtr& msg) {
+  try {
+    std::string frame = msg->header.frame_id;
+    if (!frame.empty() && frame[0] == '/') frame = frame.substr(1);
+    if (frame != options_.map_frame) {
+      throw std::invalid_argument("initialpose is in frame '" + msg->header.frame_id +
+                                  "', not in " + options_.map_frame);
+    }
+    const auto& p = msg->pose.pose;
+    const gtbow::Pose2D map_from_base{
+        p.position.x, p.position.y,
+        YawOf(p.orientation.x, p.orientation.y, p.orientation.z, p.orientation.w)};
+    if (!std::isfinite(map_from_base.x) || !std::isfinite(map_from_base.y) ||
+        !std::isfinite(map_from_base.theta)) {
+      throw std::invalid_argument("initialpose has a non-finite value");
+    }
+    std::string camera;
+    {
+      std::lock_guard<std::mutex> lock(state_mutex_);
+      camera = options_.camera_frame.empty() ? camera_frame_ : options_.camera_frame;
+    }
+    if (camera.empty()) {
+      throw std::invalid_argument("initialpose before any image: the camera frame is unknown");
+    }
+    gtbow::Pose2D base_from_camera{0, 0, 0};
+    if (!options_.base_frame.empty()) {
+      const auto b = LookupFootprint(camera, ros::Time(0), options_.base_frame, true);
+      if (!b)
+        throw std::invalid_argument("initialpose: no transform " + options_.base_frame + " -> " +
+                                    camera);
+      base_from_camera = *b;
+    }
+    const auto odom = LookupFootprint(camera, ros::Time(0), options_.odom_frame, true);
+    if (!odom) {
+      throw std::invalid_argument("initialpose: no odometry (" + options_.odom_frame + " -> " +
+                                  camera + ")");
+    }
+    const gtbow::Pose2D map_from_camera = gtbow::Compose(map_from_base, base_from_camera);
+    {
+      std::lock_guard<std::mutex> lock(gate_mutex_);
+      gate_.SetCorrection(gtbow::Compose(map_from_camera, gtbow::Inverse(*odom)), *odom);
+    }
+    ROS_INFO("ground_texture_bow: initial pose (%.3f, %.3f, %.1f deg) set", map_from_base.x,
+             map_from_base.y, map_from_base.theta * 180.0 / M_PI);
+    SendMapToOdom();
+  } catch (const std::exception& e) {
+    Reject(e.what(), false);
+  }
 }
 
 void LocalizerServer::CompressedCallback(const sensor_msgs::CompressedImageConstPtr& msg) {
@@ -146,15 +363,30 @@ std::optional<gtbow::Pose2D> LocalizerServer::LookupFootprint(const std::string&
                                                               const ros::Time& stamp,
                                                               const std::string& target,
                                                               bool warn) {
+  geometry_msgs::TransformStamped t;
   try {
-    const auto t =
-        tf_buffer_.lookupTransform(target, frame, stamp, ros::Duration(options_.tf_timeout));
-    return FootprintFromTransform(t.transform);
-  } catch (const std::exception& e) {
+    t = tf_buffer_.lookupTransform(target, frame, stamp, ros::Duration(options_.tf_timeout));
+  } catch (const tf2::TransformException& e) {
     if (warn) {
       missing_tf_++;
-      ROS_WARN_THROTTLE(2.0, "ground_texture_bow: no usable transform %s -> %s at %.3f: %s",
+      ROS_WARN_THROTTLE(2.0, "ground_texture_bow: no transform %s -> %s at %.3f: %s",
                         target.c_str(), frame.c_str(), stamp.toSec(), e.what());
+    }
+    return std::nullopt;
+  }
+  try {
+    return FootprintFromTransform(t.transform);
+  } catch (const std::invalid_argument& e) {
+    // The transform exists but cannot be used (a camera not looking down, a broken
+    // quaternion): a configuration error, told apart from a missing transform.
+    if (warn) {
+      unusable_tf_++;
+      {
+        std::lock_guard<std::mutex> lock(state_mutex_);
+        last_error_ = "transform " + target + " -> " + frame + ": " + e.what();
+      }
+      ROS_WARN_THROTTLE(2.0, "ground_texture_bow: unusable transform %s -> %s: %s", target.c_str(),
+                        frame.c_str(), e.what());
     }
     return std::nullopt;
   }
@@ -168,7 +400,12 @@ void LocalizerServer::ProcessImage(const Pending& msg) {
   if (header.frame_id.empty() && options_.use_tf) {
     throw std::invalid_argument("no frame_id in the image header and ~camera_frame is not set");
   }
+  {
+    std::lock_guard<std::mutex> lock(state_mutex_);
+    camera_frame_ = header.frame_id;
+  }
   const cv::Mat floor_image = msg.raw ? ToFloorImage(*msg.raw) : ToFloorImage(*msg.compressed);
+  ResolveScale(header.frame_id);
   const Mode mode = mode_.load();
   std::optional<gtbow::Pose2D> pose;
   if (options_.use_tf && mode == Mode::kMapping) {
@@ -179,13 +416,43 @@ void LocalizerServer::ProcessImage(const Pending& msg) {
   std::string caption = "no verified match";
   if (mode == Mode::kLocalization) {
     const gtbow::Localization fix = localizer_->Localize(img);
+    const std::optional<gtbow::Pose2D> odom = LookupOdometry(header);
     if (fix.success) {
-      PublishFix(fix, header);
-      inliers = fix.inlier_pixels;
-      caption = "fix from keyframe " + std::to_string(fix.image) + ", " +
-                std::to_string(fix.estimate.inliers) + " inliers";
+      // The gate (core/odometry_gate.h) decides whether the fix may be published and move
+      // map -> odom; without odometry there is nothing to check it against.
+      gtbow::GateVerdict verdict = gtbow::GateVerdict::kAccepted;
+      double off_m = 0, off_rad = 0;
+      if (odom) {
+        std::lock_guard<std::mutex> lock(gate_mutex_);
+        verdict = gate_.Offer(fix.estimate.floor_from_query, *odom);
+        off_m = gate_.last_error_distance();
+        off_rad = gate_.last_error_angle();
+      }
+      char off[96];
+      std::snprintf(off, sizeof(off), "%.1f mm, %.2f deg from odometry", 1000 * off_m,
+                    off_rad * 180 / M_PI);
+      if (verdict == gtbow::GateVerdict::kHeld) {
+        held_fixes_++;
+        caption = std::string("fix held by the odometry gate: ") + off;
+        ROS_WARN_THROTTLE(2.0, "ground_texture_bow: %s", caption.c_str());
+      } else {
+        if (verdict == gtbow::GateVerdict::kRelocalized) {
+          relocalizations_++;
+          ROS_WARN("ground_texture_bow: relocalized: %d fixes in a row agreed on a new place (%s)",
+                   options_.gate.relocalize_after, off);
+        }
+        PublishFix(fix, header);
+        if (odom) SendMapToOdom();
+        inliers = fix.inlier_pixels;
+        caption = "fix from keyframe " + std::to_string(fix.image) + ", " +
+                  std::to_string(fix.estimate.inliers) + " inliers";
+      }
     } else {
       failed_fixes_++;
+      if (odom) {
+        std::lock_guard<std::mutex> lock(gate_mutex_);
+        gate_.Drive(*odom);
+      }
       ROS_DEBUG_THROTTLE(2.0, "ground_texture_bow: no fix: %s", fix.reason.c_str());
     }
   } else {
@@ -227,23 +494,23 @@ void LocalizerServer::PublishFix(const gtbow::Localization& fix, const std_msgs:
     std::lock_guard<std::mutex> lock(state_mutex_);
     last_fix_time_ = ros::Time::now();
   }
-  pose_pub_.publish(ToPoseWithCovariance(fix.estimate.floor_from_query, fix.estimate.covariance,
-                                         header.stamp, options_.map_frame,
-                                         options_.planar_variance));
-  if (!options_.publish_tf) return;
-  // map -> odom such that map -> odom -> camera gives the fix (planar).
-  const auto odom = LookupFootprint(header.frame_id, header.stamp, options_.odom_frame, true);
-  if (!odom) return;
-  const gtbow::Pose2D map_from_odom =
-      gtbow::Compose(fix.estimate.floor_from_query, gtbow::Inverse(*odom));
-  geometry_msgs::TransformStamped t;
-  t.header.stamp = header.stamp;
-  t.header.frame_id = options_.map_frame;
-  t.child_frame_id = options_.odom_frame;
-  t.transform.translation.x = map_from_odom.x;
-  t.transform.translation.y = map_from_odom.y;
-  t.transform.rotation = QuaternionFromYaw(map_from_odom.theta);
-  tf_broadcaster_.sendTransform(t);
+  const auto cov = FlooredCovariance(fix.estimate.covariance, options_.min_position_variance,
+                                     options_.min_yaw_variance);
+  const gtbow::Pose2D& camera = fix.estimate.floor_from_query;
+  const auto camera_msg =
+      ToPoseWithCovariance(camera, cov, header.stamp, options_.map_frame, options_.planar_variance);
+  camera_pose_pub_.publish(camera_msg);
+  if (options_.base_frame.empty()) {
+    pose_pub_.publish(camera_msg);
+    return;
+  }
+  // REP-105: ~pose is the robot's base, through the camera's mount.
+  const auto base_from_camera =
+      LookupFootprint(header.frame_id, header.stamp, options_.base_frame, true);
+  if (!base_from_camera) return;
+  const BasePose base = BaseFromCamera(camera, cov, *base_from_camera);
+  pose_pub_.publish(ToPoseWithCovariance(base.pose, base.covariance, header.stamp,
+                                         options_.map_frame, options_.planar_variance));
 }
 
 void LocalizerServer::PublishLoopClosure(const gtbow::Candidate& c, uint32_t query_id,
@@ -278,11 +545,12 @@ void LocalizerServer::Diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat
     last_error = last_error_;
   }
   const Mode mode = mode_.load();
-  if (rejected_ > 0 || rejected_requests_ > 0 || missing_tf_ > 0) {
+  if (rejected_ > 0 || rejected_requests_ > 0 || missing_tf_ > 0 || unusable_tf_ > 0) {
     stat.summary(diagnostic_msgs::DiagnosticStatus::WARN,
                  "rejected images: " + std::to_string(rejected_.load()) +
                      ", rejected requests: " + std::to_string(rejected_requests_.load()) +
-                     ", missing transforms: " + std::to_string(missing_tf_.load()));
+                     ", missing transforms: " + std::to_string(missing_tf_.load()) +
+                     ", unusable transforms: " + std::to_string(unusable_tf_.load()));
   } else if (mode == Mode::kLocalization && !localized) {
     stat.summary(diagnostic_msgs::DiagnosticStatus::WARN, "not localized");
   } else {
@@ -298,10 +566,18 @@ void LocalizerServer::Diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat
   stat.add("rejected images", rejected_.load());
   stat.add("rejected requests", rejected_requests_.load());
   stat.add("missing transforms", missing_tf_.load());
+  stat.add("unusable transforms (camera not looking down, bad rotation)", unusable_tf_.load());
   stat.add("fixes", fixes_.load());
   stat.add("failed fixes", failed_fixes_.load());
   stat.add("loop closures", loop_closures_.load());
   stat.add("loop closures held (temporal consistency)", held_closures_.load());
+  stat.add("fixes held (odometry gate)", held_fixes_.load());
+  stat.add("relocalizations", relocalizations_.load());
+  stat.add("meters per pixel", scale_known_ ? localizer_->meters_per_pixel() : 0.0);
+  {
+    std::lock_guard<std::mutex> lock(state_mutex_);
+    stat.add("scale from", scale_known_ ? scale_source_ : "unknown");
+  }
   stat.add("localized", localized);
   stat.add("last error", last_error);
 }

@@ -16,6 +16,8 @@ template <typename Body>
 Status LocalizerServer::Serve(const char* name, bool any_error_is_input, Body&& body) {
   try {
     return body();
+  } catch (const PreconditionFailed& e) {
+    return MakeStatus(Status::FAILED_PRECONDITION, e.what());
   } catch (const std::out_of_range& e) {
     return MakeStatus(Status::NOT_FOUND, e.what());
   } catch (const std::invalid_argument& e) {
@@ -34,6 +36,8 @@ void LocalizerServer::ForgetMapState() {
     edges_.clear();
   }
   mapper_->Reset();
+  std::lock_guard<std::mutex> lock(gate_mutex_);
+  gate_.Reset();  // another map: another map -> odom
 }
 
 bool LocalizerServer::OnQueryCandidates(ground_texture_bow::QueryCandidates::Request& req,
@@ -45,6 +49,7 @@ bool LocalizerServer::OnQueryCandidates(ground_texture_bow::QueryCandidates::Req
     if (req.use_keyframe_id) {
       cands = localizer_->QueryKeyframe(req.keyframe_id, k, req.verify);
     } else {
+      RequireScale();
       cands = localizer_->Query(localizer_->Process(ToFloorImage(req.image)), k, req.verify);
     }
     for (const auto& c : cands) res.candidates.push_back(ToCandidateMsg(c));
@@ -62,6 +67,7 @@ bool LocalizerServer::OnAddKeyframe(ground_texture_bow::AddKeyframe::Request& re
     }
     std::optional<gtbow::Pose2D> pose;
     if (req.has_pose) pose = FromPose2DMsg(req.pose);
+    RequireScale();
     const gtbow::ProcessedImage img = localizer_->Process(ToFloorImage(req.image));
     res.id = localizer_->Add(img, ToNanoseconds(req.image.header.stamp), pose);
     return MakeStatus(Status::OK, "keyframe " + std::to_string(res.id) + " with " +
@@ -73,6 +79,7 @@ bool LocalizerServer::OnAddKeyframe(ground_texture_bow::AddKeyframe::Request& re
 bool LocalizerServer::OnLocalize(ground_texture_bow::Localize::Request& req,
                                  ground_texture_bow::Localize::Response& res) {
   res.status = Serve("localize", false, [&] {
+    RequireScale();
     const gtbow::Localization fix =
         localizer_->Localize(localizer_->Process(ToFloorImage(req.image)));
     res.localized = fix.success;
@@ -108,7 +115,15 @@ bool LocalizerServer::OnLoadMap(ground_texture_bow::LoadMap::Request& req,
                                 ground_texture_bow::LoadMap::Response& res) {
   res.status = Serve("load_map", true, [&] {
     if (req.path.empty()) throw std::invalid_argument("empty path");
-    res.keyframes = static_cast<uint32_t>(localizer_->Load(req.path));
+    // Without ~meters_per_pixel the map's scale is taken, and the camera's is checked against it.
+    const bool adopt = options_.meters_per_pixel <= 0;
+    res.keyframes = static_cast<uint32_t>(localizer_->Load(req.path, adopt));
+    if (adopt) {
+      scale_known_ = true;
+      scale_from_map_ = true;
+      std::lock_guard<std::mutex> lock(state_mutex_);
+      scale_source_ = "the map " + req.path;
+    }
     ForgetMapState();
     return MakeStatus(Status::OK,
                       "loaded " + std::to_string(res.keyframes) + " keyframes from " + req.path);
@@ -123,6 +138,7 @@ bool LocalizerServer::OnReset(ground_texture_bow::Reset::Request&,
       return MakeStatus(Status::FAILED_PRECONDITION, "localization mode: the map is read-only");
     }
     localizer_->Reset();
+    scale_from_map_ = false;  // an empty map takes the camera's scale again
     ForgetMapState();
     return MakeStatus(Status::OK, "map cleared");
   });
@@ -145,8 +161,12 @@ bool LocalizerServer::OnGetInfo(ground_texture_bow::GetInfo::Request&,
     res.requests_rejected = rejected_requests_.load();
     res.fixes = fixes_.load();
     res.loop_closures = loop_closures_.load();
+    res.fixes_held = held_fixes_.load();
+    res.relocalizations = relocalizations_.load();
+    res.meters_per_pixel = scale_known_ ? localizer_->meters_per_pixel() : 0.0;
     {
       std::lock_guard<std::mutex> lock(state_mutex_);
+      res.scale_source = scale_source_;
       res.localized = !last_fix_time_.isZero() &&
                       (ros::Time::now() - last_fix_time_).toSec() <= options_.localized_timeout;
     }

@@ -37,6 +37,18 @@ void ServerOptions::Check() const {
   need(tf_timeout >= 0, "~tf_timeout must be >= 0");
   need(localized_timeout > 0, "~localized_timeout must be > 0");
   need(planar_variance > 0, "~planar_variance must be > 0");
+  need(meters_per_pixel >= 0, "~meters_per_pixel must be >= 0 (0: from camera_info)");
+  need(camera_height >= 0, "~camera_height must be >= 0 (0: from TF)");
+  need(scale_tolerance > 0 && scale_tolerance < 1, "~scale_tolerance must be in (0, 1)");
+  need(min_position_variance >= 0 && min_yaw_variance >= 0,
+       "~min_position_variance and ~min_yaw_variance must be >= 0");
+  need(transform_tolerance >= 0, "~transform_tolerance must be >= 0");
+  need(tf_rate > 0, "~tf_rate must be > 0");
+  try {
+    gate.Check();
+  } catch (const std::invalid_argument& e) {
+    throw std::invalid_argument(std::string("parameter ~") + e.what());
+  }
   try {
     mapper.Check();  // its messages name the parameter without the ~
   } catch (const std::invalid_argument& e) {
@@ -64,7 +76,20 @@ ServerOptions ReadOptions(const ros::NodeHandle& pnh) {
   pnh.param("odom_frame", o.odom_frame, o.odom_frame);
   pnh.param("camera_frame", o.camera_frame, o.camera_frame);
   pnh.param("transport", o.transport, o.transport);
-  pnh.param("meters_per_pixel", o.core.meters_per_pixel, o.core.meters_per_pixel);
+  pnh.param("meters_per_pixel", o.meters_per_pixel, o.meters_per_pixel);
+  if (o.meters_per_pixel > 0) o.core.meters_per_pixel = o.meters_per_pixel;
+  pnh.param("scale_tolerance", o.scale_tolerance, o.scale_tolerance);
+  pnh.param("base_frame", o.base_frame, o.base_frame);
+  pnh.param("min_position_variance", o.min_position_variance, o.min_position_variance);
+  pnh.param("min_yaw_variance", o.min_yaw_variance, o.min_yaw_variance);
+  pnh.param("transform_tolerance", o.transform_tolerance, o.transform_tolerance);
+  pnh.param("tf_rate", o.tf_rate, o.tf_rate);
+  pnh.param("odom_gate", o.gate.enabled, o.gate.enabled);
+  pnh.param("gate_distance", o.gate.distance, o.gate.distance);
+  pnh.param("gate_angle", o.gate.angle, o.gate.angle);
+  pnh.param("gate_distance_drift", o.gate.distance_drift, o.gate.distance_drift);
+  pnh.param("gate_angle_drift", o.gate.angle_drift, o.gate.angle_drift);
+  pnh.param("relocalize_after", o.gate.relocalize_after, o.gate.relocalize_after);
   pnh.param("threads", o.core.threads, o.core.threads);
   pnh.param("keep_descriptors", o.core.keep_descriptors, o.core.keep_descriptors);
   pnh.param("use_tf", o.use_tf, o.use_tf);

@@ -31,6 +31,7 @@ struct DriveFrame {
   nav_msgs::OdometryConstPtr odom;
   tf2_msgs::TFMessageConstPtr tf;
   sensor_msgs::ImageConstPtr image;
+  sensor_msgs::CameraInfoConstPtr info;  // the scale, with the mount's height
   gtbow::Pose2D truth;
 };
 
@@ -46,6 +47,8 @@ Drive ReadDrive(const std::string& path) {
   for (const rosbag::MessageInstance& m : rosbag::View(bag)) {
     if (auto img = m.instantiate<sensor_msgs::Image>()) {
       by_stamp[img->header.stamp].image = img;
+    } else if (auto info = m.instantiate<sensor_msgs::CameraInfo>()) {
+      by_stamp[info->header.stamp].info = info;
     } else if (auto odom = m.instantiate<nav_msgs::Odometry>()) {
       by_stamp[odom->header.stamp].odom = odom;
     } else if (auto tf = m.instantiate<tf2_msgs::TFMessage>()) {
@@ -159,7 +162,7 @@ TEST(Backend, ClosuresCorrectTheOdometryAndAWrongOneIsIgnored) {
   const auto& frames = drive.frames;
   ASSERT_GT(frames.size(), 100u);
   ASSERT_EQ(drive.statics.size(), 1u) << "drive.bag: one static transform base -> camera";
-  for (const auto& f : frames) ASSERT_TRUE(f.odom && f.tf && f.image);
+  for (const auto& f : frames) ASSERT_TRUE(f.odom && f.tf && f.image && f.info);
   const gtbow::Pose2D mount = gtbow_ros::FootprintFromTransform(drive.statics[0].transform);
 
   // The bag's image stamps are start + index / rate, as the scripts read them back.
@@ -183,13 +186,15 @@ TEST(Backend, ClosuresCorrectTheOdometryAndAWrongOneIsIgnored) {
   ros::Publisher odom_pub = nh.advertise<nav_msgs::Odometry>("/odom", 1000);
   ros::Publisher tf_pub = nh.advertise<tf2_msgs::TFMessage>("/tf", 1000);
   ros::Publisher img_pub = nh.advertise<sensor_msgs::Image>("/camera/image_raw", 10);
+  ros::Publisher info_pub = nh.advertise<sensor_msgs::CameraInfo>("/camera/camera_info", 10);
   ros::Publisher loop_pub =
       nh.advertise<ground_texture_bow::LoopClosure>("/localizer/loop_closures", 10);
   Collector<ground_texture_bow::LoopClosure> closures("/localizer/loop_closures", 5000);
   const std::vector<std::string> nodes = {"backend", "backend_loss_only", "backend_check_only",
                                           "backend_unprotected"};
   const ros::WallTime deadline = ros::WallTime::now() + ros::WallDuration(30);
-  while ((img_pub.getNumSubscribers() == 0 || odom_pub.getNumSubscribers() < nodes.size() ||
+  while ((img_pub.getNumSubscribers() == 0 || info_pub.getNumSubscribers() == 0 ||
+          odom_pub.getNumSubscribers() < nodes.size() ||
           loop_pub.getNumSubscribers() < nodes.size() + 1) &&
          ros::WallTime::now() < deadline) {
     ros::WallDuration(0.05).sleep();
@@ -231,6 +236,7 @@ TEST(Backend, ClosuresCorrectTheOdometryAndAWrongOneIsIgnored) {
   for (size_t i = 0; i < frames.size(); ++i) {
     odom_pub.publish(frames[i].odom);
     tf_pub.publish(frames[i].tf);
+    info_pub.publish(frames[i].info);
     ros::WallDuration(0.01).sleep();
     img_pub.publish(frames[i].image);
     const ros::WallTime limit = ros::WallTime::now() + ros::WallDuration(10);

@@ -219,18 +219,27 @@ TEST(BadInput, EachKindIsCountedReportedAndLosesNothing) {
   EXPECT_EQ(info.images_rejected, 3u);
   EXPECT_EQ(info.requests_rejected, 7u);  // NaN pose, two saves, three loads, query
   EXPECT_EQ(gtbow::ReadFile(good_path), good_bytes);
-  const NodeStatus latest = wait_status("/localizer", [](const NodeStatus& st) {
-    const auto missing = st.values.find("missing transforms");
-    return missing != st.values.end() && !missing->second.empty() &&
-           std::stoi(missing->second) >= 4 && st.values.at("rejected images") == "3" &&
+  // A transform that is missing or stale counts as missing, one that exists but cannot be used
+  // (NaN, should tf2 pass it on) as unusable: four in all.
+  auto transforms = [](const NodeStatus& st) {
+    int n = 0;
+    for (const char* key :
+         {"missing transforms", "unusable transforms (camera not looking down, bad rotation)"}) {
+      const auto it = st.values.find(key);
+      if (it == st.values.end() || it->second.empty()) return -1;
+      n += std::stoi(it->second);
+    }
+    return n;
+  };
+  const NodeStatus latest = wait_status("/localizer", [&](const NodeStatus& st) {
+    return transforms(st) >= 4 && st.values.at("rejected images") == "3" &&
            st.values.at("rejected requests") == "7";
   });
-  const bool seen = latest.seen && latest.values.count("missing transforms") &&
-                    std::stoi(latest.values.at("missing transforms")) >= 4 &&
+  const bool seen = latest.seen && transforms(latest) >= 4 &&
                     latest.values.at("rejected images") == "3" &&
                     latest.values.at("rejected requests") == "7";
   EXPECT_TRUE(seen) << "diagnostics do not report the rejected images and requests and the "
-                       "missing transforms (no transform, stale, NaN, stale)";
+                       "missing or unusable transforms (no transform, stale, NaN, stale)";
   const diagnostic_msgs::DiagnosticStatus& status = latest.status;
   EXPECT_EQ(status.level, diagnostic_msgs::DiagnosticStatus::WARN);
   fs::remove_all(dir);

@@ -9,6 +9,8 @@
 //   soak.test          Soak.*        (soak_rostest.cpp)       `make soak`, and 60 s under TSan
 //   large_map.test     LargeMap.*    (large_map_rostest.cpp)  a 2,000-keyframe map answers the
 //                                    same after ~save_map, loaded or kept by the mapper
+//   robot.test         Robot.*       (robot_rostest.cpp)      a robot's camera: scale from
+//                                    camera_info, base pose, odometry gate, initialpose
 // The suites replay the bags test/ros/make_test_data.sh generated (images and ground-truth TF of
 // a small synthetic floor) and check what comes out against the ground truth.
 #pragma once
@@ -36,6 +38,7 @@
 #include <geometry_msgs/PoseStamped.h>
 #include <geometry_msgs/PoseWithCovarianceStamped.h>
 #include <gtest/gtest.h>
+#include <image_transport/camera_common.h>
 #include <nodelet/NodeletLoad.h>
 #include <nodelet/NodeletUnload.h>
 #include <ros/network.h>
@@ -43,6 +46,7 @@
 #include <ros/topic.h>
 #include <rosbag/bag.h>
 #include <rosbag/view.h>
+#include <sensor_msgs/CameraInfo.h>
 #include <sensor_msgs/Image.h>
 #include <tf2_msgs/TFMessage.h>
 #include <tf2_ros/buffer.h>
@@ -80,7 +84,8 @@ inline const gtbow::ImageGeometry kGeometry{640, 480, 0.00025};
 
 struct Frame {
   sensor_msgs::ImageConstPtr image;
-  tf2_msgs::TFMessageConstPtr tf;  // may be null (bag without TF)
+  tf2_msgs::TFMessageConstPtr tf;        // may be null (bag without TF)
+  sensor_msgs::CameraInfoConstPtr info;  // may be null (bag without camera_info)
   gtbow::Pose2D truth;
 };
 
@@ -90,6 +95,8 @@ inline std::vector<Frame> ReadBag(const std::string& path) {
   for (const rosbag::MessageInstance& m : rosbag::View(bag)) {
     if (auto img = m.instantiate<sensor_msgs::Image>()) {
       by_stamp[img->header.stamp].image = img;
+    } else if (auto info = m.instantiate<sensor_msgs::CameraInfo>()) {
+      by_stamp[info->header.stamp].info = info;
     } else if (auto tf = m.instantiate<tf2_msgs::TFMessage>()) {
       by_stamp[tf->transforms.at(0).header.stamp].tf = tf;
     } else if (auto p = m.instantiate<geometry_msgs::PoseStamped>()) {
@@ -159,16 +166,24 @@ inline void Replay(const std::vector<Frame>& frames, const std::string& topic,
   ros::NodeHandle nh;
   ros::Publisher img_pub = nh.advertise<sensor_msgs::Image>(topic, 10);
   ros::Publisher tf_pub = nh.advertise<tf2_msgs::TFMessage>("/tf", 100);
+  const std::string info_topic = image_transport::getCameraInfoTopic(topic);
+  ros::Publisher info_pub = nh.advertise<sensor_msgs::CameraInfo>(info_topic, 10);
+  const bool with_info = std::any_of(frames.begin(), frames.end(),
+                                     [](const Frame& f) { return static_cast<bool>(f.info); });
   const ros::WallTime deadline = ros::WallTime::now() + ros::WallDuration(20);
-  while (img_pub.getNumSubscribers() == 0 && ros::WallTime::now() < deadline)
+  while ((img_pub.getNumSubscribers() == 0 || (with_info && info_pub.getNumSubscribers() == 0)) &&
+         ros::WallTime::now() < deadline)
     ros::WallDuration(0.05).sleep();
   ASSERT_GT(img_pub.getNumSubscribers(), 0u) << "nobody subscribes to " << topic;
+  if (with_info)
+    ASSERT_GT(info_pub.getNumSubscribers(), 0u) << "nobody subscribes to " << info_topic;
   ros::WallDuration(0.5).sleep();
   const uint64_t before = Info(node).images_received;
   for (size_t i = 0; i < frames.size(); ++i) {
     const Frame& f = frames[i];
     if (f.tf) tf_pub.publish(f.tf);
-    ros::WallDuration(0.01).sleep();  // the transform arrives before the image
+    if (f.info) info_pub.publish(f.info);
+    ros::WallDuration(0.01).sleep();  // the transform and camera_info arrive before the image
     img_pub.publish(f.image);
     ros::WallDuration(1.0 / rate).sleep();
     const ros::WallTime limit = ros::WallTime::now() + ros::WallDuration(10);

@@ -8,22 +8,28 @@
 // for bookkeeping and one query, so no service waits for the worker's extraction.
 //   slot_mutex_   guards pending_ (the waiting image)
 //   state_mutex_  guards edges_, last_fix_ (shared by worker, services, timer)
+//   camera_mutex_ guards the latest camera_info; gate_mutex_ the odometry gate (worker,
+//                 initialpose, the map -> odom timer)
 //   counters are std::atomic; mode_ is std::atomic.
 #pragma once
 
 #include <atomic>
 #include <condition_variable>
+#include <map>
 #include <memory>
 #include <mutex>
 #include <optional>
+#include <stdexcept>
 #include <string>
 #include <thread>
 #include <utility>
 #include <vector>
 
 #include <diagnostic_updater/diagnostic_updater.h>
+#include <geometry_msgs/PoseWithCovarianceStamped.h>
 #include <image_transport/image_transport.h>
 #include <ros/ros.h>
+#include <sensor_msgs/CameraInfo.h>
 #include <sensor_msgs/CompressedImage.h>
 #include <tf2_ros/buffer.h>
 #include <tf2_ros/transform_broadcaster.h>
@@ -42,6 +48,11 @@
 #include "ground_texture_bow/ros/server_options.h"
 
 namespace gtbow_ros {
+
+// A request that cannot be served in the node's state (Status::FAILED_PRECONDITION).
+struct PreconditionFailed : std::runtime_error {
+  using std::runtime_error::runtime_error;
+};
 
 class LocalizerServer {
  public:
@@ -66,6 +77,21 @@ class LocalizerServer {
   };
 
   void ImageCallback(const sensor_msgs::ImageConstPtr& msg);
+  void CameraInfoCallback(const sensor_msgs::CameraInfoConstPtr& msg);
+  // amcl's initialpose: the base's pose in map_frame sets the odometry gate's map -> odom.
+  void InitialPoseCallback(const geometry_msgs::PoseWithCovarianceStampedConstPtr& msg);
+  // Makes sure the scale of an image from `frame` is known and agrees with the map's (see
+  // ServerOptions::meters_per_pixel); throws std::invalid_argument saying why not.
+  void ResolveScale(const std::string& frame);
+  // The camera's height above the floor: ~camera_height, else its TF height in base_frame,
+  // odom_frame or map_frame (the first that exists); `source` says which.
+  std::optional<double> CameraHeight(const std::string& frame, std::string* source);
+  // Services that verify need the scale: throws PreconditionFailed while it is unknown.
+  void RequireScale() const;
+  // The camera's footprint in odom_frame at the image's stamp, when odometry exists.
+  std::optional<gtbow::Pose2D> LookupOdometry(const std_msgs::Header& header);
+  // map -> odom from the gate's correction, dated now + ~transform_tolerance (amcl's way).
+  void SendMapToOdom();
   void CompressedCallback(const sensor_msgs::CompressedImageConstPtr& msg);
   void Enqueue(Pending p);
   void WorkerLoop();
@@ -123,7 +149,10 @@ class LocalizerServer {
   image_transport::Subscriber image_sub_;
   ros::Subscriber compressed_sub_;  // transport: compressed (Debian has no compressed plugin)
   image_transport::Publisher debug_pub_;
-  ros::Publisher pose_pub_, loop_pub_, candidates_pub_, markers_pub_;
+  ros::Publisher pose_pub_, camera_pose_pub_, loop_pub_, candidates_pub_, markers_pub_;
+  ros::Subscriber info_sub_, initialpose_sub_;
+  std::string info_topic_;
+  ros::Timer tf_timer_;
   std::vector<ros::ServiceServer> services_;
   ros::Timer markers_timer_;
   diagnostic_updater::Updater updater_;
@@ -132,7 +161,9 @@ class LocalizerServer {
   std::atomic<Mode> mode_;
   std::atomic<uint64_t> received_{0}, processed_{0}, dropped_{0}, rejected_{0}, debug_images_{0},
       rejected_requests_{0}, missing_tf_{0}, fixes_{0}, loop_closures_{0}, failed_fixes_{0},
-      held_closures_{0};
+      held_closures_{0}, held_fixes_{0}, relocalizations_{0}, unusable_tf_{0};
+  std::atomic<bool> scale_known_{false};     // explicit, from the map, or from camera_info
+  std::atomic<bool> scale_from_map_{false};  // a loaded map's: the camera is checked against it
   std::atomic<double> last_processing_ms_{0.0};
   std::atomic<double> input_rate_hz_{0.0};
 
@@ -147,6 +178,16 @@ class LocalizerServer {
   ros::Time last_fix_time_;    // guarded by state_mutex_
   ros::Time last_image_time_;  // guarded by state_mutex_
   std::string last_error_;     // guarded by state_mutex_
+  std::string scale_source_;   // guarded by state_mutex_
+  std::string camera_frame_;   // the latest image's frame (initialpose); state_mutex_
+
+  std::mutex camera_mutex_;
+  sensor_msgs::CameraInfoConstPtr camera_info_;  // the latest; guarded by camera_mutex_
+  std::map<std::string, std::pair<double, std::string>> heights_;  // by frame; worker only
+  bool warned_unchecked_scale_ = false;                            // worker only
+
+  std::mutex gate_mutex_;
+  gtbow::OdometryGate gate_;  // guarded by gate_mutex_
 };
 
 }  // namespace gtbow_ros

@@ -9,6 +9,7 @@
 
 #include "ground_texture_bow/core/localizer.h"
 #include "ground_texture_bow/core/mapper.h"
+#include "ground_texture_bow/core/odometry_gate.h"
 
 namespace gtbow_ros {
 
@@ -35,13 +36,24 @@ struct ServerOptions {
   bool publish_tf = false;         // publish map -> odom from fixes
   double localized_timeout = 2.0;  // seconds a fix counts as "localized" in diagnostics
   double planar_variance = 1e-9;   // variance on z, roll and pitch of ~pose
-  double camera_height = 0.0;      // for markers only, metres
+  // The ground sampling distance: > 0 sets it; 0 takes it from the camera (camera_info's K and
+  // the camera's height) or, failing that, from the loaded map.
+  double meters_per_pixel = 0.0;
+  double camera_height = 0.0;     // m above the floor; 0: from TF (base, odom or map frame)
+  double scale_tolerance = 0.02;  // the camera's scale may differ from the map's by this ratio
+  std::string base_frame = "base_link";  // ~pose is this frame's pose; "": the camera's
+  double min_position_variance = 1e-6;   // m^2: floor on x and y of the fixes' covariance
+  double min_yaw_variance = 3e-6;        // rad^2: floor on yaw
+  double transform_tolerance = 0.1;      // s: map -> odom is dated this far ahead (amcl's)
+  double tf_rate = 20.0;                 // Hz: map -> odom republished (publish_tf)
+  gtbow::OdometryGateOptions gate;       // ~odom_gate, ~gate_*, ~relocalize_after
   // The engine's mapping policy (gtbow::Mapper): ~keyframe_min_distance, ~keyframe_min_angle,
   // ~keyframe_every_n (without TF), ~exclude_recent, and ~temporal_consistency (N),
   // ~temporal_distance, ~temporal_angle, ~temporal_max_motion.
   gtbow::MapperOptions mapper;
 
-  // The node's defaults for the engine's options: 2 threads, 0.25 mm per pixel, K = 5,
+  // The node's defaults for the engine's options: 2 threads, 0.25 mm per pixel (a placeholder
+  // while ~meters_per_pixel is 0 and the scale is not known: nothing is verified with it), K = 5,
   // 6 inliers.
   static gtbow::LocalizerOptions DefaultCore();
   // Throws std::invalid_argument naming the bad parameter: the ROS-only ones here, the
