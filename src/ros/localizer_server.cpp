@@ -74,6 +74,11 @@ LocalizerServer::LocalizerServer(ros::NodeHandle nh, ros::NodeHandle pnh,
     tf_timer_ = nh_.createTimer(ros::Duration(1.0 / options_.tf_rate),
                                 [this](const ros::TimerEvent&) { SendMapToOdom(); });
   }
+  if (options_.autosave_period > 0) {
+    autosave_timer_ =
+        nh_.createWallTimer(ros::WallDuration(options_.autosave_period),
+                            [this](const ros::WallTimerEvent&) { AutoSave("periodic"); });
+  }
   // amcl's topic, in the node's namespace (remap it like amcl's).
   initialpose_sub_ = nh_.subscribe("initialpose", 2, &LocalizerServer::InitialPoseCallback, this);
 
@@ -112,6 +117,29 @@ LocalizerServer::~LocalizerServer() {
   }
   slot_cv_.notify_all();
   if (worker_.joinable()) worker_.join();
+  autosave_timer_.stop();
+  if (options_.save_on_shutdown) AutoSave("shutdown");
+}
+
+void LocalizerServer::AutoSave(const char* why) {
+  if (options_.autosave_path.empty() || mode_.load() == Mode::kLocalization) return;
+  std::lock_guard<std::mutex> one(autosave_mutex_);
+  const uint64_t changes = changes_.load();
+  if (changes == saved_changes_.load() || localizer_->size() == 0) return;
+  try {
+    const gtbow::SaveStats s = localizer_->Save(options_.autosave_path);
+    saved_changes_ = changes;
+    autosaves_++;
+    ROS_INFO("ground_texture_bow: %s save of %llu keyframes to %s", why,
+             static_cast<unsigned long long>(s.keyframes), options_.autosave_path.c_str());
+  } catch (const std::exception& e) {
+    autosave_errors_++;
+    {
+      std::lock_guard<std::mutex> lock(state_mutex_);
+      last_error_ = std::string(why) + " save: " + e.what();
+    }
+    ROS_ERROR("ground_texture_bow: %s save failed: %s", why, e.what());
+  }
 }
 
 void LocalizerServer::Reject(const std::string& what, bool image) {
@@ -461,6 +489,7 @@ void LocalizerServer::ProcessImage(const Pending& msg) {
         mapper_->Process(img, ToNanoseconds(header.stamp), pose, mode == Mode::kMapping);
     const uint32_t query_id =
         step.keyframe ? *step.keyframe : ground_texture_bow::CandidateList::NO_ID;
+    if (step.keyframe) changes_++;
     ground_texture_bow::CandidateList list;
     list.header = header;
     list.query_id = query_id;
@@ -545,7 +574,10 @@ void LocalizerServer::Diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat
     last_error = last_error_;
   }
   const Mode mode = mode_.load();
-  if (rejected_ > 0 || rejected_requests_ > 0 || missing_tf_ > 0 || unusable_tf_ > 0) {
+  if (autosave_errors_ > 0) {
+    stat.summary(diagnostic_msgs::DiagnosticStatus::ERROR,
+                 "autosave to " + options_.autosave_path + " failed: " + last_error);
+  } else if (rejected_ > 0 || rejected_requests_ > 0 || missing_tf_ > 0 || unusable_tf_ > 0) {
     stat.summary(diagnostic_msgs::DiagnosticStatus::WARN,
                  "rejected images: " + std::to_string(rejected_.load()) +
                      ", rejected requests: " + std::to_string(rejected_requests_.load()) +
@@ -573,6 +605,8 @@ void LocalizerServer::Diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat
   stat.add("loop closures held (temporal consistency)", held_closures_.load());
   stat.add("fixes held (odometry gate)", held_fixes_.load());
   stat.add("relocalizations", relocalizations_.load());
+  stat.add("autosaves", autosaves_.load());
+  stat.add("autosave errors", autosave_errors_.load());
   stat.add("meters per pixel", scale_known_ ? localizer_->meters_per_pixel() : 0.0);
   {
     std::lock_guard<std::mutex> lock(state_mutex_);

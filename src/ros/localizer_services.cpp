@@ -70,6 +70,7 @@ bool LocalizerServer::OnAddKeyframe(ground_texture_bow::AddKeyframe::Request& re
     RequireScale();
     const gtbow::ProcessedImage img = localizer_->Process(ToFloorImage(req.image));
     res.id = localizer_->Add(img, ToNanoseconds(req.image.header.stamp), pose);
+    changes_++;
     return MakeStatus(Status::OK, "keyframe " + std::to_string(res.id) + " with " +
                                       std::to_string(img.features.size()) + " keypoints");
   });
@@ -104,6 +105,7 @@ bool LocalizerServer::OnSaveMap(ground_texture_bow::SaveMap::Request& req,
           "localization mode: the map is read-only and is not saved (set_mode first)");
     }
     if (req.path.empty()) throw std::invalid_argument("empty path");
+    CheckAbsolutePath(req.path, "save_map: path");
     const gtbow::SaveStats saved = localizer_->Save(req.path);
     return MakeStatus(Status::OK,
                       "saved " + std::to_string(saved.keyframes) + " keyframes to " + req.path);
@@ -115,6 +117,7 @@ bool LocalizerServer::OnLoadMap(ground_texture_bow::LoadMap::Request& req,
                                 ground_texture_bow::LoadMap::Response& res) {
   res.status = Serve("load_map", true, [&] {
     if (req.path.empty()) throw std::invalid_argument("empty path");
+    CheckAbsolutePath(req.path, "load_map: path");
     // Without ~meters_per_pixel the map's scale is taken, and the camera's is checked against it.
     const bool adopt = options_.meters_per_pixel <= 0;
     res.keyframes = static_cast<uint32_t>(localizer_->Load(req.path, adopt));

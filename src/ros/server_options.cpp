@@ -25,6 +25,14 @@ gtbow::LocalizerOptions ServerOptions::DefaultCore() {
   return core;
 }
 
+void CheckAbsolutePath(const std::string& path, const std::string& what) {
+  if (!path.empty() && path[0] == '/') return;
+  throw std::invalid_argument(
+      what + " '" + path + "' is not an absolute path: the node runs in its manager's working " +
+      "directory (ROS_HOME, by default ~/.ros), not in your shell's; give the whole path (in a " +
+      "shell, $PWD/" + path + ")");
+}
+
 std::string DefaultPreset() { return GTBOW_CONFIG_DIR "/high_accuracy.yaml"; }
 
 void ServerOptions::Check() const {
@@ -44,6 +52,15 @@ void ServerOptions::Check() const {
        "~min_position_variance and ~min_yaw_variance must be >= 0");
   need(transform_tolerance >= 0, "~transform_tolerance must be >= 0");
   need(tf_rate > 0, "~tf_rate must be > 0");
+  need(autosave_period >= 0, "~autosave_period must be >= 0 (0: only on shutdown)");
+  need(autosave_period == 0 || !autosave_path.empty(), "~autosave_period needs ~autosave_path");
+  for (const auto& [path, what] :
+       {std::pair<const std::string&, const char*>{vocabulary, "~vocabulary"},
+        {map, "~map"},
+        {preset, "~preset"},
+        {autosave_path, "~autosave_path"}}) {
+    if (!path.empty()) CheckAbsolutePath(path, what);
+  }
   try {
     gate.Check();
   } catch (const std::invalid_argument& e) {
@@ -90,6 +107,9 @@ ServerOptions ReadOptions(const ros::NodeHandle& pnh) {
   pnh.param("gate_distance_drift", o.gate.distance_drift, o.gate.distance_drift);
   pnh.param("gate_angle_drift", o.gate.angle_drift, o.gate.angle_drift);
   pnh.param("relocalize_after", o.gate.relocalize_after, o.gate.relocalize_after);
+  pnh.param("autosave_path", o.autosave_path, o.autosave_path);
+  pnh.param("autosave_period", o.autosave_period, o.autosave_period);
+  pnh.param("save_on_shutdown", o.save_on_shutdown, o.save_on_shutdown);
   pnh.param("threads", o.core.threads, o.core.threads);
   pnh.param("keep_descriptors", o.core.keep_descriptors, o.core.keep_descriptors);
   pnh.param("use_tf", o.use_tf, o.use_tf);

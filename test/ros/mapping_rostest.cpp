@@ -207,6 +207,20 @@ TEST(Mapping, ReplayBuildsKeyframesAndRevisitsGetTheRightOnes) {
     ros::WallDuration(0.05).sleep();
   }
   ExpectTemporalConsistency("/localizer_n3", n3_lists.Get(), n3_closures.Get(), diagnostics);
+
+  // Nothing lost: unloading the nodelet (as a Ctrl-C does) saves its map to ~autosave_path,
+  // every keyframe in it.
+  std::string autosave;
+  ASSERT_TRUE(ros::param::get("/localizer_n3/autosave_path", autosave));
+  const uint32_t n3_keyframes = Info("/localizer_n3").database_size;
+  ASSERT_GT(n3_keyframes, 0u);
+  EXPECT_FALSE(fs::exists(autosave)) << "no periodic save was asked for";
+  nodelet::NodeletUnload unload;
+  unload.request.name = "/localizer_n3";
+  EXPECT_TRUE(Call("/localizer_manager/unload_nodelet", unload).response.success);
+  ASSERT_TRUE(fs::exists(autosave)) << autosave;
+  EXPECT_EQ(gtbow::Localizer::ReadMapInfo(autosave).keyframes, n3_keyframes);
+  fs::remove(autosave);
 }
 
 }  // namespace

@@ -116,6 +116,24 @@ TEST(Robot, BaseFixesFromCameraInfoAndTfHeldWrongFixesAndAKidnappedRobot) {
   EXPECT_DOUBLE_EQ(mapper.meters_per_pixel, 0.00025);
   EXPECT_NE(mapper.scale_source.find("camera_info"), std::string::npos) << mapper.scale_source;
   EXPECT_EQ(mapper.images_rejected, 0u);
+  // ~autosave_period: within a few periods the file holds every keyframe.
+  std::string autosave;
+  ASSERT_TRUE(ros::param::get("/mapper/autosave_path", autosave));
+  uint64_t saved = 0;
+  for (const ros::WallTime end = ros::WallTime::now() + ros::WallDuration(30);
+       ros::WallTime::now() < end && saved != mapper.database_size;
+       ros::WallDuration(0.1).sleep()) {
+    if (fs::exists(autosave)) saved = gtbow::Localizer::ReadMapInfo(autosave).keyframes;
+  }
+  EXPECT_EQ(saved, mapper.database_size) << autosave;
+  fs::remove(autosave);
+  // A relative path is refused, with the reason.
+  ground_texture_bow::SaveMap relative;
+  relative.request.path = "map.gtmap";
+  relative = Call("/mapper/save_map", relative);
+  EXPECT_EQ(relative.response.status.code, Status::INVALID_ARGUMENT);
+  EXPECT_NE(relative.response.status.message.find("not an absolute path"), std::string::npos)
+      << relative.response.status.message;
   const fs::path dir = fs::temp_directory_path() / ("gtbow_robot_" + std::to_string(::getpid()));
   fs::create_directories(dir);
   ground_texture_bow::SaveMap save;

@@ -92,6 +92,10 @@ class LocalizerServer {
   std::optional<gtbow::Pose2D> LookupOdometry(const std_msgs::Header& header);
   // map -> odom from the gate's correction, dated now + ~transform_tolerance (amcl's way).
   void SendMapToOdom();
+  // Saves the map to ~autosave_path when keyframes were added since the last save (never an
+  // empty map, never in localization mode); `why` goes into the log. Errors are logged and
+  // counted, never thrown.
+  void AutoSave(const char* why);
   void CompressedCallback(const sensor_msgs::CompressedImageConstPtr& msg);
   void Enqueue(Pending p);
   void WorkerLoop();
@@ -153,6 +157,9 @@ class LocalizerServer {
   ros::Subscriber info_sub_, initialpose_sub_;
   std::string info_topic_;
   ros::Timer tf_timer_;
+  ros::WallTimer autosave_timer_;
+  std::mutex autosave_mutex_;  // one autosave at a time
+  std::atomic<uint64_t> changes_{0}, saved_changes_{0}, autosaves_{0}, autosave_errors_{0};
   std::vector<ros::ServiceServer> services_;
   ros::Timer markers_timer_;
   diagnostic_updater::Updater updater_;

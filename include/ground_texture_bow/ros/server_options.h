@@ -47,6 +47,12 @@ struct ServerOptions {
   double transform_tolerance = 0.1;      // s: map -> odom is dated this far ahead (amcl's)
   double tf_rate = 20.0;                 // Hz: map -> odom republished (publish_tf)
   gtbow::OdometryGateOptions gate;       // ~odom_gate, ~gate_*, ~relocalize_after
+  // Nothing lost: the map is saved to autosave_path (absolute; "" = never) every
+  // autosave_period seconds (0 = never periodically) and when the node shuts down
+  // (save_on_shutdown), whenever keyframes were added since the last save.
+  std::string autosave_path;
+  double autosave_period = 0.0;
+  bool save_on_shutdown = true;
   // The engine's mapping policy (gtbow::Mapper): ~keyframe_min_distance, ~keyframe_min_angle,
   // ~keyframe_every_n (without TF), ~exclude_recent, and ~temporal_consistency (N),
   // ~temporal_distance, ~temporal_angle, ~temporal_max_motion.
@@ -60,6 +66,11 @@ struct ServerOptions {
   // engine's through LocalizerOptions::Check.
   void Check() const;
 };
+
+// Throws std::invalid_argument unless `path` is absolute: a node runs in its manager's working
+// directory (ROS_HOME, by default ~/.ros), not in the shell's that launched it, so a relative
+// path would silently land or be looked for there. `what` names the parameter or service.
+void CheckAbsolutePath(const std::string& path, const std::string& what);
 
 // The preset a node uses when ~preset is empty or unset.
 std::string DefaultPreset();
