@@ -47,6 +47,11 @@ fi
 [ "${GTBOW_SLOW_DISK:-0}" = 1 ] && slow=1
 mkdir -p "$(dirname "$log")"
 rm -rf "$ws/build/test_results"
+# real_floor_small_test's photographs: beside the repository, or from their Debian packages.
+repo="$(cd "$(dirname "$0")/.." && pwd)"
+if [ ! -d "$repo/../shared/real_floors" ]; then
+  bash "$repo/scripts/real_floor_photos.sh" "$repo/build/real_floors"
+fi
 echo "building and running tests (log: $log)"
 if ! catkin_make -C "$ws" "${cmake_args[@]}" -j"$jobs" > "$log" 2>&1; then
   tail -n 60 "$log"
