@@ -130,10 +130,12 @@ void LocalizerServer::AutoSave(const char* why) {
     const gtbow::SaveStats s = localizer_->Save(options_.autosave_path);
     saved_changes_ = changes;
     autosaves_++;
+    last_autosave_failed_ = false;
     ROS_INFO("ground_texture_bow: %s save of %llu keyframes to %s", why,
              static_cast<unsigned long long>(s.keyframes), options_.autosave_path.c_str());
   } catch (const std::exception& e) {
     autosave_errors_++;
+    last_autosave_failed_ = true;
     {
       std::lock_guard<std::mutex> lock(state_mutex_);
       last_error_ = std::string(why) + " save: " + e.what();
@@ -574,15 +576,33 @@ void LocalizerServer::Diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat
     last_error = last_error_;
   }
   const Mode mode = mode_.load();
-  if (autosave_errors_ > 0) {
+  const ProblemCounts now{rejected_.load(), rejected_requests_.load(), missing_tf_.load(),
+                          unusable_tf_.load()};
+  ProblemCounts then;  // at the start of the window (zero while the node is younger)
+  {
+    std::lock_guard<std::mutex> lock(diag_mutex_);
+    const ros::WallTime t = ros::WallTime::now();
+    diag_history_.emplace_back(t, now);
+    const ros::WallTime start = t - ros::WallDuration(options_.diagnostics_window);
+    while (diag_history_.size() > 1 && diag_history_[1].first <= start) diag_history_.pop_front();
+    if (diag_history_.front().first <= start) then = diag_history_.front().second;
+  }
+  const uint64_t recent_rejected = now.rejected - then.rejected;
+  const uint64_t recent_requests = now.requests - then.requests;
+  const uint64_t recent_missing = now.missing_tf - then.missing_tf;
+  const uint64_t recent_unusable = now.unusable_tf - then.unusable_tf;
+  char window[48];
+  std::snprintf(window, sizeof(window), "in the last %.0f s: ", options_.diagnostics_window);
+  if (last_autosave_failed_) {
     stat.summary(diagnostic_msgs::DiagnosticStatus::ERROR,
                  "autosave to " + options_.autosave_path + " failed: " + last_error);
-  } else if (rejected_ > 0 || rejected_requests_ > 0 || missing_tf_ > 0 || unusable_tf_ > 0) {
+  } else if (recent_rejected > 0 || recent_requests > 0 || recent_missing > 0 ||
+             recent_unusable > 0) {
     stat.summary(diagnostic_msgs::DiagnosticStatus::WARN,
-                 "rejected images: " + std::to_string(rejected_.load()) +
-                     ", rejected requests: " + std::to_string(rejected_requests_.load()) +
-                     ", missing transforms: " + std::to_string(missing_tf_.load()) +
-                     ", unusable transforms: " + std::to_string(unusable_tf_.load()));
+                 std::string(window) + "rejected images: " + std::to_string(recent_rejected) +
+                     ", rejected requests: " + std::to_string(recent_requests) +
+                     ", missing transforms: " + std::to_string(recent_missing) +
+                     ", unusable transforms: " + std::to_string(recent_unusable));
   } else if (mode == Mode::kLocalization && !localized) {
     stat.summary(diagnostic_msgs::DiagnosticStatus::WARN, "not localized");
   } else {

@@ -52,6 +52,7 @@ void ServerOptions::Check() const {
        "~min_position_variance and ~min_yaw_variance must be >= 0");
   need(transform_tolerance >= 0, "~transform_tolerance must be >= 0");
   need(tf_rate > 0, "~tf_rate must be > 0");
+  need(diagnostics_window > 0, "~diagnostics_window must be > 0");
   need(autosave_period >= 0, "~autosave_period must be >= 0 (0: only on shutdown)");
   need(autosave_period == 0 || !autosave_path.empty(), "~autosave_period needs ~autosave_path");
   for (const auto& [path, what] :
@@ -107,6 +108,7 @@ ServerOptions ReadOptions(const ros::NodeHandle& pnh) {
   pnh.param("gate_distance_drift", o.gate.distance_drift, o.gate.distance_drift);
   pnh.param("gate_angle_drift", o.gate.angle_drift, o.gate.angle_drift);
   pnh.param("relocalize_after", o.gate.relocalize_after, o.gate.relocalize_after);
+  pnh.param("diagnostics_window", o.diagnostics_window, o.diagnostics_window);
   pnh.param("autosave_path", o.autosave_path, o.autosave_path);
   pnh.param("autosave_period", o.autosave_period, o.autosave_period);
   pnh.param("save_on_shutdown", o.save_on_shutdown, o.save_on_shutdown);

@@ -15,6 +15,7 @@
 
 #include <atomic>
 #include <condition_variable>
+#include <deque>
 #include <map>
 #include <memory>
 #include <mutex>
@@ -160,6 +161,15 @@ class LocalizerServer {
   ros::WallTimer autosave_timer_;
   std::mutex autosave_mutex_;  // one autosave at a time
   std::atomic<uint64_t> changes_{0}, saved_changes_{0}, autosaves_{0}, autosave_errors_{0};
+  std::atomic<bool> last_autosave_failed_{false};
+  // The problem counters (rejected images, rejected requests, missing and unusable transforms)
+  // at each diagnostics update over the last ~diagnostics_window: the status tells what went
+  // wrong recently, the values what went wrong since the start.
+  struct ProblemCounts {
+    uint64_t rejected = 0, requests = 0, missing_tf = 0, unusable_tf = 0;
+  };
+  std::mutex diag_mutex_;
+  std::deque<std::pair<ros::WallTime, ProblemCounts>> diag_history_;  // guarded by diag_mutex_
   std::vector<ros::ServiceServer> services_;
   ros::Timer markers_timer_;
   diagnostic_updater::Updater updater_;

@@ -29,13 +29,14 @@ struct ServerOptions {
   Mode mode = Mode::kMapping;
   std::string map_frame = "map";
   std::string odom_frame = "odom";
-  std::string camera_frame;        // overrides the image header's frame_id when set
-  std::string transport = "raw";   // raw (image_transport) or compressed (<image>/compressed)
-  bool use_tf = true;              // look up the camera pose in map_frame
-  double tf_timeout = 0.05;        // seconds to wait for a transform
-  bool publish_tf = false;         // publish map -> odom from fixes
-  double localized_timeout = 2.0;  // seconds a fix counts as "localized" in diagnostics
-  double planar_variance = 1e-9;   // variance on z, roll and pitch of ~pose
+  std::string camera_frame;          // overrides the image header's frame_id when set
+  std::string transport = "raw";     // raw (image_transport) or compressed (<image>/compressed)
+  bool use_tf = true;                // look up the camera pose in map_frame
+  double tf_timeout = 0.05;          // seconds to wait for a transform
+  bool publish_tf = false;           // publish map -> odom from fixes
+  double localized_timeout = 2.0;    // seconds a fix counts as "localized" in diagnostics
+  double diagnostics_window = 10.0;  // s: WARN for bad input in this recent window only
+  double planar_variance = 1e-9;     // variance on z, roll and pitch of ~pose
   // The ground sampling distance: > 0 sets it; 0 takes it from the camera (camera_info's K and
   // the camera's height) or, failing that, from the loaded map.
   double meters_per_pixel = 0.0;
