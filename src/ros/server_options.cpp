@@ -2,6 +2,8 @@
 #include "ground_texture_bow/ros/server_options.h"
 
 #include <stdexcept>
+
+#include <ros/package.h>
 #include <string>
 
 #include "ground_texture_bow/core/config.h"
@@ -33,7 +35,13 @@ void CheckAbsolutePath(const std::string& path, const std::string& what) {
       "shell, $PWD/" + path + ")");
 }
 
-std::string DefaultPreset() { return GTBOW_CONFIG_DIR "/high_accuracy.yaml"; }
+std::string DefaultPreset() {
+  // The package's share directory, wherever it is (a devel or an install space); the source
+  // tree's only when ROS cannot find the package (a binary run outside any workspace).
+  const std::string share = ros::package::getPath("ground_texture_bow");
+  return (share.empty() ? std::string(GTBOW_CONFIG_DIR) : share + "/config") +
+         "/high_accuracy.yaml";
+}
 
 void ServerOptions::Check() const {
   auto need = [](bool ok, const std::string& what) {
