@@ -5,6 +5,7 @@
 
 #include <cv_bridge/cv_bridge.h>
 #include <sensor_msgs/image_encodings.h>
+#include <opencv2/calib3d.hpp>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
@@ -231,6 +232,36 @@ bool HasDistortion(const sensor_msgs::CameraInfo& info) {
     if (d != 0.0) return true;
   }
   return false;
+}
+
+cv::Mat Rectifier::Rectify(const cv::Mat& floor_image, const sensor_msgs::CameraInfo& info) {
+  if (info.distortion_model != "plumb_bob" && info.distortion_model != "rational_polynomial") {
+    throw std::invalid_argument("camera_info's distortion model '" + info.distortion_model +
+                                "' is not supported (plumb_bob or rational_polynomial; or feed "
+                                "rectified images and set ~rectify false)");
+  }
+  if (static_cast<uint32_t>(floor_image.cols) != info.width ||
+      static_cast<uint32_t>(floor_image.rows) != info.height) {
+    throw std::invalid_argument("the image is " + std::to_string(floor_image.cols) + "x" +
+                                std::to_string(floor_image.rows) + ", its camera_info " +
+                                std::to_string(info.width) + "x" + std::to_string(info.height));
+  }
+  if (map_x_.empty() || cached_.K != info.K || cached_.D != info.D || cached_.width != info.width ||
+      cached_.height != info.height || cached_.distortion_model != info.distortion_model) {
+    const cv::Mat k(3, 3, CV_64F, const_cast<double*>(info.K.data()));
+    const cv::Mat d(1, static_cast<int>(info.D.size()), CV_64F, const_cast<double*>(info.D.data()));
+    cv::Mat mx, my;
+    cv::initUndistortRectifyMap(k, d, cv::Mat(), k, floor_image.size(), CV_32FC1, mx, my);
+    // The maps are for the optical image; the floor image is it upside down:
+    // rect_floor(u, v) = optical(mx(u, H-1-v), my(u, H-1-v)) = floor(mx(..), H-1 - my(..)).
+    cv::flip(mx, map_x_, 0);
+    cv::flip(my, map_y_, 0);
+    map_y_ = static_cast<float>(floor_image.rows - 1) - map_y_;
+    cached_ = info;
+  }
+  cv::Mat out;
+  cv::remap(floor_image, out, map_x_, map_y_, cv::INTER_LINEAR, cv::BORDER_CONSTANT, 0);
+  return out;
 }
 
 std::array<double, 9> FlooredCovariance(const std::array<double, 9>& c, double min_position,

@@ -434,8 +434,25 @@ void LocalizerServer::ProcessImage(const Pending& msg) {
     std::lock_guard<std::mutex> lock(state_mutex_);
     camera_frame_ = header.frame_id;
   }
-  const cv::Mat floor_image = msg.raw ? ToFloorImage(*msg.raw) : ToFloorImage(*msg.compressed);
+  cv::Mat floor_image = msg.raw ? ToFloorImage(*msg.raw) : ToFloorImage(*msg.compressed);
   ResolveScale(header.frame_id);
+  sensor_msgs::CameraInfoConstPtr info;
+  {
+    std::lock_guard<std::mutex> lock(camera_mutex_);
+    info = camera_info_;
+  }
+  if (info && HasDistortion(*info)) {
+    if (options_.rectify) {
+      floor_image = rectifier_.Rectify(floor_image, *info);
+      rectified_++;
+    } else if (!warned_unrectified_) {
+      ROS_WARN(
+          "ground_texture_bow: camera_info on %s has distortion but ~rectify is false: "
+          "the images are used as they come",
+          info_topic_.c_str());
+      warned_unrectified_ = true;
+    }
+  }
   const Mode mode = mode_.load();
   std::optional<gtbow::Pose2D> pose;
   if (options_.use_tf && mode == Mode::kMapping) {
@@ -625,6 +642,7 @@ void LocalizerServer::Diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat
   stat.add("loop closures held (temporal consistency)", held_closures_.load());
   stat.add("fixes held (odometry gate)", held_fixes_.load());
   stat.add("relocalizations", relocalizations_.load());
+  stat.add("images rectified", rectified_.load());
   stat.add("autosaves", autosaves_.load());
   stat.add("autosave errors", autosave_errors_.load());
   stat.add("meters per pixel", scale_known_ ? localizer_->meters_per_pixel() : 0.0);

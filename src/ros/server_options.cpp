@@ -105,6 +105,7 @@ ServerOptions ReadOptions(const ros::NodeHandle& pnh) {
   pnh.param("meters_per_pixel", o.meters_per_pixel, o.meters_per_pixel);
   if (o.meters_per_pixel > 0) o.core.meters_per_pixel = o.meters_per_pixel;
   pnh.param("scale_tolerance", o.scale_tolerance, o.scale_tolerance);
+  pnh.param("rectify", o.rectify, o.rectify);
   pnh.param("base_frame", o.base_frame, o.base_frame);
   pnh.param("min_position_variance", o.min_position_variance, o.min_position_variance);
   pnh.param("min_yaw_variance", o.min_yaw_variance, o.min_yaw_variance);

@@ -73,6 +73,20 @@ double MetersPerPixelFromCameraInfo(const sensor_msgs::CameraInfo& info, double 
 // Whether the camera_info's distortion is other than none (all coefficients zero).
 bool HasDistortion(const sensor_msgs::CameraInfo& info);
 
+// Undistorts floor images (flipped, as ToFloorImage gives them) of a camera with distortion,
+// onto the pinhole image of the same K (so the scale is unchanged). The maps are computed once
+// per camera_info (K, D, size, model) and kept. Thread-compatible: one per worker.
+class Rectifier {
+ public:
+  // Throws std::invalid_argument for a distortion model other than plumb_bob or
+  // rational_polynomial, or an image whose size is not the camera_info's.
+  cv::Mat Rectify(const cv::Mat& floor_image, const sensor_msgs::CameraInfo& info);
+
+ private:
+  sensor_msgs::CameraInfo cached_;  // the camera_info the maps are for
+  cv::Mat map_x_, map_y_;
+};
+
 // A fix's 3x3 (x, y, yaw) covariance with its diagonal raised to at least the floors: RANSAC's
 // own value is sub-millimetre, which a filter would trust more than any fix deserves.
 std::array<double, 9> FlooredCovariance(const std::array<double, 9>& covariance,

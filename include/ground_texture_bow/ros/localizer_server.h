@@ -46,6 +46,7 @@
 #include "ground_texture_bow/SetMode.h"
 #include "ground_texture_bow/core/localizer.h"
 #include "ground_texture_bow/core/mapper.h"
+#include "ground_texture_bow/ros/conversions.h"
 #include "ground_texture_bow/ros/server_options.h"
 
 namespace gtbow_ros {
@@ -202,6 +203,9 @@ class LocalizerServer {
   sensor_msgs::CameraInfoConstPtr camera_info_;  // the latest; guarded by camera_mutex_
   std::map<std::string, std::pair<double, std::string>> heights_;  // by frame; worker only
   bool warned_unchecked_scale_ = false;                            // worker only
+  bool warned_unrectified_ = false;                                // worker only
+  Rectifier rectifier_;                                            // worker only
+  std::atomic<uint64_t> rectified_{0};
 
   std::mutex gate_mutex_;
   gtbow::OdometryGate gate_;  // guarded by gate_mutex_

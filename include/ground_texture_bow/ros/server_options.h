@@ -42,6 +42,8 @@ struct ServerOptions {
   double meters_per_pixel = 0.0;
   double camera_height = 0.0;     // m above the floor; 0: from TF (base, odom or map frame)
   double scale_tolerance = 0.02;  // the camera's scale may differ from the map's by this ratio
+  bool rectify = true;            // undistort images whose camera_info has distortion (plumb_bob,
+                                  // rational_polynomial); off: images are used as they come
   std::string base_frame = "base_link";  // ~pose is this frame's pose; "": the camera's
   double min_position_variance = 1e-6;   // m^2: floor on x and y of the fixes' covariance
   double min_yaw_variance = 3e-6;        // rad^2: floor on yaw
