@@ -26,6 +26,10 @@ PACKAGES=(
   # make test-sanitize: the ASan/UBSan/TSan runtimes, llvm-symbolizer for the TSan reports
   libasan8 libubsan1 libtsan2 llvm
 )
+# make screenshots (--screenshots): RViz under Xvfb, and ImageMagick's import to capture it.
+if [ "${1:-}" = "--screenshots" ]; then
+  PACKAGES+=(rviz xvfb imagemagick)
+fi
 
 missing=()
 for p in "${PACKAGES[@]}"; do

@@ -40,7 +40,9 @@ void LocalizerServer::PublishMarkers(const ros::TimerEvent&) {
   visualization_msgs::MarkerArray arr;
   visualization_msgs::Marker fp, edges;
   fp.header.frame_id = edges.header.frame_id = options_.map_frame;
-  fp.header.stamp = edges.header.stamp = ros::Time::now();
+  // Stamp 0: the map does not move with time; RViz then uses the latest transform (a bag
+  // replayed on wall time, a map frame that a backend corrects).
+  fp.header.stamp = edges.header.stamp = ros::Time(0);
   fp.ns = "keyframes";
   edges.ns = "loop_closures";
   fp.type = edges.type = visualization_msgs::Marker::LINE_LIST;
