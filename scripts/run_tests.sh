@@ -13,7 +13,7 @@ ws="$1"
 jobs="${2:-2}"
 mode="${3:-}"
 log="$ws/../test.log"
-cmake_args=(-DCMAKE_BUILD_TYPE=Release)
+cmake_args=(-DCMAKE_BUILD_TYPE=Release "-DCMAKE_INSTALL_PREFIX=$ws/../install")
 if [ "$mode" = "sanitize" ]; then
   log="$ws/../test-sanitize.log"
   reports="$ws/../sanitizer"
@@ -89,6 +89,18 @@ if [ $slow = 1 ]; then
 else
   catkin_make -C "$ws" -j"$jobs" run_tests >> "$log" 2>&1
   status=$?
+fi
+# The package from an install space (not under the sanitizers: the same code).
+if [ "$mode" != "sanitize" ]; then
+  install="$(cd "$ws/.." && pwd)/install"
+  xml="$ws/build/test_results/ground_texture_bow/install_space.xml"
+  if catkin_make -C "$ws" -j"$jobs" install >> "$log" 2>&1; then
+    bash "$(dirname "$0")/../test/ros/install_space_test.sh" "$install" \
+      "$ws/build/ground_texture_bow/rostest_data/vocab.gtvoc" "$xml" >> "$log" 2>&1
+  else
+    mkdir -p "$(dirname "$xml")"
+    echo '<?xml version="1.0"?><testsuite name="install_space" tests="1" failures="1"><testcase classname="InstallSpace" name="TheNodeRunsFromAnInstallSpaceWithItsPreset"><failure message="catkin_make install failed">catkin_make install failed (see the log)</failure></testcase></testsuite>' > "$xml"
+  fi
 fi
 /usr/bin/python3 "$(dirname "$0")/test_summary.py" "$ws/build/test_results"
 summary=$?
