@@ -44,7 +44,9 @@ if [ -z "$failure" ]; then
 XML
   echo "install space: the nodelet runs from $install with $expected"
 else
-  msg="$(echo "$failure" | sed 's/&/\&amp;/g; s/</\&lt;/g; s/>/\&gt;/g; s/"/\&quot;/g')"
+  # Printable characters only (the output carries terminal colour codes), on one line, escaped.
+  msg="$(printf '%s' "$failure" | tr '\n' ' ' | tr -cd '[:print:]' | cut -c1-2000 |
+    sed 's/&/\&amp;/g; s/</\&lt;/g; s/>/\&gt;/g; s/"/\&quot;/g')"
   cat > "$xml" <<XML
 <?xml version="1.0" encoding="UTF-8"?>
 <testsuite name="install_space" tests="1" failures="1" errors="0"><testcase classname="InstallSpace" name="TheNodeRunsFromAnInstallSpaceWithItsPreset"><failure message="$msg">$msg</failure></testcase></testsuite>
