@@ -116,6 +116,23 @@ ate_ok=1
   --max-rmse-mm "$ATE_MAX_MM" --min-improvement "$ODOMETRY_FACTOR" "${runs[@]}" |
   sed 's/^/   /' || ate_ok=0
 echo "   ($(( $(date +%s) - t_start )) s; logs, bag and trajectories in $out)"
+# What is measured is what ships: gtbow slam runs the node's mapping pipeline (gtbow::Mapper)
+# offline; on this drive it must find exactly the closures that the node published on the
+# replay, with the same relative poses.
+same_ok=1
+first_preset="${presets%% *}"
+echo "== backend 6. gtbow slam on the same drive against the node's $first_preset closures"
+"$gtbow" slam --dataset "$out/floor" --vocab "$out/floor.gtvoc" \
+  --preset "$ws/src/ground_texture_bow/config/$first_preset.yaml" --rate "$rate" \
+  --temporal-consistency "$temporal" --out "$out/slam_$first_preset$sfx" --no-plots -q |
+  tail -n 4 | sed 's/^/   /'
+/usr/bin/python3 "$here/compare_closures.py" "$out/closures_${first_preset}_n$temporal.bag" \
+  "$out/slam_$first_preset$sfx" "$out/floor" --start 1000 --rate "$rate" \
+  --markdown "$out/node_vs_slam$sfx.md" --require-identical | sed 's/^/   /' || same_ok=0
+if [ $same_ok != 1 ]; then
+  echo "backend demo FAILED: gtbow slam and the node found different loop closures" >&2
+  exit 1
+fi
 if [ $ate_ok != 1 ]; then
   echo "backend demo FAILED: the backend's ATE RMSE is not below $ATE_MAX_MM mm for every" \
     "preset, or odometry alone's is not $ODOMETRY_FACTOR times it (verdict above)" >&2
