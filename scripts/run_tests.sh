@@ -13,7 +13,7 @@ ws="$1"
 jobs="${2:-2}"
 mode="${3:-}"
 log="$ws/../test.log"
-cmake_args=(-DCMAKE_BUILD_TYPE=Release "-DCMAKE_INSTALL_PREFIX=$ws/../install")
+cmake_args=(-DCMAKE_BUILD_TYPE=Release)
 if [ "$mode" = "sanitize" ]; then
   log="$ws/../test-sanitize.log"
   reports="$ws/../sanitizer"
@@ -92,7 +92,8 @@ else
 fi
 # The package from an install space (not under the sanitizers: the same code).
 if [ "$mode" != "sanitize" ]; then
-  install="$(cd "$ws/.." && pwd)/install"
+  # catkin_make's install space (build/ws/install unless the cache says otherwise).
+  install="$(sed -n 's/^CMAKE_INSTALL_PREFIX:PATH=//p' "$ws/build/CMakeCache.txt")"
   xml="$ws/build/test_results/ground_texture_bow/install_space.xml"
   if catkin_make -C "$ws" -j"$jobs" install >> "$log" 2>&1; then
     bash "$(dirname "$0")/../test/ros/install_space_test.sh" "$install" \
