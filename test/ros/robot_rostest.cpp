@@ -182,7 +182,9 @@ TEST(Robot, BaseFixesFromCameraInfoAndTfHeldWrongFixesAndAKidnappedRobot) {
   const auto camera_fixes = camera_topic.Get();
   ASSERT_FALSE(camera_fixes.empty());
   const auto& c0 = camera_fixes.front();
-  const auto& b0 = pose_topic.Get().front();
+  const auto base_fixes_msgs = pose_topic.Get();
+  ASSERT_FALSE(base_fixes_msgs.empty());
+  const auto& b0 = base_fixes_msgs.front();  // a copy: Get() returns one
   EXPECT_NEAR(std::hypot(c0.pose.pose.position.x - b0.pose.pose.position.x,
                          c0.pose.pose.position.y - b0.pose.pose.position.y),
               0.15, 1e-6);
