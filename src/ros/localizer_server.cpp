@@ -83,10 +83,19 @@ LocalizerServer::LocalizerServer(ros::NodeHandle nh, ros::NodeHandle pnh,
   initialpose_sub_ = nh_.subscribe("initialpose", 2, &LocalizerServer::InitialPoseCallback, this);
 
   worker_ = std::thread([this] { WorkerLoop(); });
+  info_topic_ = image_transport::getCameraInfoTopic(nh_.resolveName("image"));
+  // Described before the subscriptions: from then on the worker may set the scale.
+  const std::string scale =
+      scale_known_ ? std::to_string(localizer_->meters_per_pixel()) + " m/px from " + scale_source_
+                   : "from camera_info on " + info_topic_;
+  ROS_INFO(
+      "ground_texture_bow: %s mode, %zu keyframes, vocabulary %s (%u words), preset %s, "
+      "scale %s",
+      ModeName(mode_).c_str(), localizer_->size(), vocab_path.c_str(),
+      localizer_->vocabulary().size(), options_.preset.c_str(), scale.c_str());
   // The subscriptions go last: callbacks may start at once. camera_info is subscribed on its
   // own (not through a CameraSubscriber) so that a camera without one still works with
   // ~meters_per_pixel set.
-  info_topic_ = image_transport::getCameraInfoTopic(nh_.resolveName("image"));
   info_sub_ = nh_.subscribe(info_topic_, 2, &LocalizerServer::CameraInfoCallback, this);
   if (options_.transport == "compressed") {
     // Decoded here with OpenCV: Debian ships no compressed image_transport plugin.
@@ -95,14 +104,6 @@ LocalizerServer::LocalizerServer(ros::NodeHandle nh, ros::NodeHandle pnh,
   } else {
     image_sub_ = it_.subscribe("image", 5, &LocalizerServer::ImageCallback, this);
   }
-  ROS_INFO(
-      "ground_texture_bow: %s mode, %zu keyframes, vocabulary %s (%u words), preset %s, "
-      "scale %s",
-      ModeName(mode_).c_str(), localizer_->size(), vocab_path.c_str(),
-      localizer_->vocabulary().size(), options_.preset.c_str(),
-      scale_known_
-          ? (std::to_string(localizer_->meters_per_pixel()) + " m/px from " + scale_source_).c_str()
-          : ("from camera_info on " + info_topic_).c_str());
 }
 
 LocalizerServer::~LocalizerServer() {
