@@ -157,16 +157,11 @@ void Run(const Args& a) {
     }
     double height = a.camera_height;
     std::string height_source = "--camera-height";
-    for (const std::string& f : {a.base_frame, a.odom_frame, a.map_frame}) {
-      if (height > 0) break;
-      if (f.empty() || !tf._frameExists(f)) continue;
-      try {
-        const double h = tf.lookupTransform(f, camera, ros::Time(0)).transform.translation.z;
-        if (h > 0) {
-          height = h;
-          height_source = "TF " + f + " -> " + camera;
-        }
-      } catch (const tf2::TransformException&) {
+    if (!(height > 0)) {
+      if (const auto h = gtbow_ros::LookupCameraHeight(
+              tf, {a.base_frame, a.odom_frame, a.map_frame}, camera)) {
+        height = h->height;
+        height_source = h->source;
       }
     }
     if (!(height > 0)) {

@@ -5,6 +5,7 @@
 
 #include <cv_bridge/cv_bridge.h>
 #include <sensor_msgs/image_encodings.h>
+#include <tf2/exceptions.h>
 #include <opencv2/calib3d.hpp>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
@@ -225,6 +226,20 @@ double MetersPerPixelFromCameraInfo(const sensor_msgs::CameraInfo& info, double 
                                 "): the floor's scale would differ along u and v");
   }
   return height / (0.5 * (fx + fy));
+}
+
+std::optional<CameraHeightFromTf> LookupCameraHeight(const tf2::BufferCore& tf,
+                                                     const std::vector<std::string>& frames,
+                                                     const std::string& camera) {
+  for (const std::string& f : frames) {
+    if (f.empty() || !tf._frameExists(f)) continue;
+    try {
+      const double h = tf.lookupTransform(f, camera, ros::Time(0)).transform.translation.z;
+      if (h > 0) return CameraHeightFromTf{h, "TF " + f + " -> " + camera};
+    } catch (const tf2::TransformException&) {
+    }
+  }
+  return std::nullopt;
 }
 
 bool HasDistortion(const sensor_msgs::CameraInfo& info) {

@@ -174,31 +174,20 @@ std::optional<double> LocalizerServer::CameraHeight(const std::string& frame, st
     *source = it->second.second;
     return it->second.first;
   }
-  for (const std::string& target : {options_.base_frame, options_.odom_frame, options_.map_frame}) {
-    if (target.empty() || !tf_buffer_._frameExists(target)) continue;
-    try {
-      const auto t = tf_buffer_.lookupTransform(target, frame, ros::Time(0));
-      const double h = t.transform.translation.z;
-      if (!(h > 0)) continue;
-      // The floor is the frame's z = 0 plane (REP-105's base_footprint; map and odom on the
-      // floor): a robot's mount does not change, so the height is kept.
-      heights_[frame] = {h, "TF " + target + " -> " + frame};
-      *source = heights_[frame].second;
-      return h;
-    } catch (const tf2::TransformException&) {
-      continue;
-    }
+  // A robot's mount does not change: the height is kept per camera frame.
+  const auto h = LookupCameraHeight(
+      tf_buffer_, {options_.base_frame, options_.odom_frame, options_.map_frame}, frame);
+  if (h) {
+    heights_[frame] = {h->height, h->source};
+    *source = h->source;
+    return h->height;
   }
   return std::nullopt;
 }
 
-void LocalizerServer::ResolveScale(const std::string& frame) {
+void LocalizerServer::ResolveScale(const std::string& frame,
+                                   const sensor_msgs::CameraInfoConstPtr& info) {
   if (options_.meters_per_pixel > 0) return;  // explicit
-  sensor_msgs::CameraInfoConstPtr info;
-  {
-    std::lock_guard<std::mutex> lock(camera_mutex_);
-    info = camera_info_;
-  }
   if (!info) {
     if (scale_known_) return;  // from the loaded map; nothing to check it against
     throw std::invalid_argument(
@@ -436,12 +425,12 @@ void LocalizerServer::ProcessImage(const Pending& msg) {
     camera_frame_ = header.frame_id;
   }
   cv::Mat floor_image = msg.raw ? ToFloorImage(*msg.raw) : ToFloorImage(*msg.compressed);
-  ResolveScale(header.frame_id);
-  sensor_msgs::CameraInfoConstPtr info;
+  sensor_msgs::CameraInfoConstPtr info;  // the latest, for the scale and the rectification
   {
     std::lock_guard<std::mutex> lock(camera_mutex_);
     info = camera_info_;
   }
+  ResolveScale(header.frame_id, info);
   if (info && HasDistortion(*info)) {
     if (options_.rectify) {
       floor_image = rectifier_.Rectify(floor_image, *info);

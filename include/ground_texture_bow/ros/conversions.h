@@ -11,7 +11,9 @@
 
 #include <array>
 #include <cstdint>
+#include <optional>
 #include <string>
+#include <vector>
 
 #include <geometry_msgs/Pose2D.h>
 #include <geometry_msgs/PoseWithCovarianceStamped.h>
@@ -20,6 +22,7 @@
 #include <sensor_msgs/CameraInfo.h>
 #include <sensor_msgs/CompressedImage.h>
 #include <sensor_msgs/Image.h>
+#include <tf2/buffer_core.h>
 #include <opencv2/core.hpp>
 
 #include "ground_texture_bow/Candidate.h"
@@ -69,6 +72,17 @@ geometry_msgs::PoseWithCovarianceStamped ToPoseWithCovariance(
 // sends), pixels that are not square (fx and fy more than 1% apart), or a height that is not
 // positive.
 double MetersPerPixelFromCameraInfo(const sensor_msgs::CameraInfo& info, double height);
+
+// A downward camera's height above the floor from TF: its latest z in the first of `frames`
+// that exists and reaches it with a positive height (each frame's z = 0 plane taken as the
+// floor, as REP-120's base_footprint). `source` says which ("TF base_link -> camera").
+struct CameraHeightFromTf {
+  double height = 0;
+  std::string source;
+};
+std::optional<CameraHeightFromTf> LookupCameraHeight(const tf2::BufferCore& tf,
+                                                     const std::vector<std::string>& frames,
+                                                     const std::string& camera);
 
 // Whether the camera_info's distortion is other than none (all coefficients zero).
 bool HasDistortion(const sensor_msgs::CameraInfo& info);

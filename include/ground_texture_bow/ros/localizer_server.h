@@ -82,9 +82,10 @@ class LocalizerServer {
   void CameraInfoCallback(const sensor_msgs::CameraInfoConstPtr& msg);
   // amcl's initialpose: the base's pose in map_frame sets the odometry gate's map -> odom.
   void InitialPoseCallback(const geometry_msgs::PoseWithCovarianceStampedConstPtr& msg);
-  // Makes sure the scale of an image from `frame` is known and agrees with the map's (see
-  // ServerOptions::meters_per_pixel); throws std::invalid_argument saying why not.
-  void ResolveScale(const std::string& frame);
+  // Makes sure the scale of an image from `frame`, whose camera_info is `info` (may be null), is
+  // known and agrees with the map's (see ServerOptions::meters_per_pixel); throws
+  // std::invalid_argument saying why not.
+  void ResolveScale(const std::string& frame, const sensor_msgs::CameraInfoConstPtr& info);
   // The camera's height above the floor: ~camera_height, else its TF height in base_frame,
   // odom_frame or map_frame (the first that exists); `source` says which.
   std::optional<double> CameraHeight(const std::string& frame, std::string* source);
