@@ -167,6 +167,70 @@ int LoopClosureCandidate(const std::vector<Candidate>& candidates,
 
 detail::KeyframeView Localizer::View(uint32_t id) const { return keyframes_->Get(id); }
 
+std::optional<Pose2D> Localizer::PoseOf(uint32_t id, const detail::KeyframeRecord& record) const {
+  if (moved_ && id < moved_->size() && !std::isnan((*moved_)[id].x)) return (*moved_)[id];
+  if ((record.flags & detail::KeyframeRecord::kHasPose) == 0) return std::nullopt;
+  return Pose2D{record.x, record.y, record.theta};
+}
+
+size_t Localizer::UpdateKeyframePoses(const std::vector<KeyframePose>& poses) {
+  for (const KeyframePose& p : poses) {
+    if (!(std::isfinite(p.map_from_camera.x) && std::isfinite(p.map_from_camera.y) &&
+          std::isfinite(p.map_from_camera.theta))) {
+      throw std::invalid_argument("the pose given to keyframe " + std::to_string(p.id) +
+                                  " has a non-finite value");
+    }
+  }
+  // The new table is built outside the map's lock (a copy of a million poses takes
+  // milliseconds) and swapped in under it, unless the map changed meanwhile.
+  std::lock_guard<std::mutex> one(update_mutex_);
+  for (;;) {
+    std::shared_ptr<const std::vector<Pose2D>> old;
+    uint64_t generation;
+    std::vector<uint8_t> known(poses.size(), 0);  // the id exists with this stamp
+    size_t size;
+    {
+      std::shared_lock<std::shared_mutex> lock(mutex_);
+      old = moved_;
+      generation = generation_;
+      size = keyframes_->size();
+      for (size_t i = 0; i < poses.size(); ++i) {
+        known[i] = poses[i].id < size && View(poses[i].id).record->stamp_ns == poses[i].stamp_ns;
+      }
+    }
+    auto table = std::make_shared<std::vector<Pose2D>>(old ? *old : std::vector<Pose2D>());
+    table->resize(size, Pose2D{std::nan(""), 0, 0});
+    size_t applied = 0;
+    for (size_t i = 0; i < poses.size(); ++i) {
+      if (!known[i]) continue;  // a keyframe added without a pose gets one too
+      (*table)[poses[i].id] = poses[i].map_from_camera;
+      ++applied;
+    }
+    std::unique_lock<std::shared_mutex> lock(mutex_);
+    if (generation_ != generation || moved_ != old) continue;  // a reset or load: again
+    if (applied > 0) {
+      moved_ = std::move(table);
+      poses_optimised_ = true;
+    }
+    return applied;
+  }
+}
+
+void Localizer::SetPoseFrame(const std::string& frame) {
+  std::unique_lock<std::shared_mutex> lock(mutex_);
+  pose_frame_ = frame;
+}
+
+std::string Localizer::pose_frame() const {
+  std::shared_lock<std::shared_mutex> lock(mutex_);
+  return pose_frame_;
+}
+
+bool Localizer::poses_optimised() const {
+  std::shared_lock<std::shared_mutex> lock(mutex_);
+  return poses_optimised_;
+}
+
 std::string Localizer::Damaged(uint32_t id) const {
   const detail::KeyframeView v = View(id);
   if (v.verify && Checksum64(v.payload, v.payload_bytes) != v.record->payload_checksum) {
@@ -200,8 +264,9 @@ std::vector<Candidate> Localizer::QueryLocked(const BowVector& bow, int width, i
     c.id = r.image;
     c.score = r.score;
     c.stamp_ns = kf.stamp_ns;
-    c.has_pose = (kf.flags & detail::KeyframeRecord::kHasPose) != 0;
-    c.map_from_camera = {kf.x, kf.y, kf.theta};
+    const std::optional<Pose2D> pose = PoseOf(r.image, kf);
+    c.has_pose = pose.has_value();
+    if (pose) c.map_from_camera = *pose;
     if (verify) {
       std::string damaged;
       if (kf.width != static_cast<uint32_t>(width) || kf.height != static_cast<uint32_t>(height)) {
@@ -267,13 +332,10 @@ Localization Localizer::Localize(const ProcessedImage& image) const {
   }
   // The evaluation's own verification (pose.cpp), over this map's keyframes.
   MapAccess map = RelativeAccess();
-  map.pose = [this](uint32_t id) {
-    const detail::KeyframeRecord& r = *View(id).record;
-    return Pose2D{r.x, r.y, r.theta};
-  };
+  map.pose = [this](uint32_t id) { return PoseOf(id, *View(id).record).value_or(Pose2D{}); };
   map.unusable = [&](uint32_t id) -> std::string {
     const detail::KeyframeRecord& kf = *View(id).record;
-    if ((kf.flags & detail::KeyframeRecord::kHasPose) == 0) return "no pose";
+    if (!PoseOf(id, kf)) return "no pose";
     if (kf.width != static_cast<uint32_t>(image.width) ||
         kf.height != static_cast<uint32_t>(image.height))
       return "other image size";
@@ -291,6 +353,8 @@ void Localizer::Reset() {
   std::unique_lock<std::shared_mutex> lock(mutex_);
   database_.swap(db);
   keyframes_.swap(store);
+  moved_.reset();
+  poses_optimised_ = false;
   ++generation_;
   lock.unlock();  // the old map is freed without holding up callers
 }
@@ -322,12 +386,13 @@ size_t Localizer::HeapBytes() const {
 
 namespace {
 
-Keyframe KeyframeOf(uint32_t id, const detail::KeyframeRecord& r) {
+Keyframe KeyframeOf(uint32_t id, const detail::KeyframeRecord& r,
+                    const std::optional<Pose2D>& pose) {
   Keyframe k;
   k.id = id;
   k.stamp_ns = r.stamp_ns;
-  k.has_pose = (r.flags & detail::KeyframeRecord::kHasPose) != 0;
-  k.map_from_camera = {r.x, r.y, r.theta};
+  k.has_pose = pose.has_value();
+  if (pose) k.map_from_camera = *pose;
   k.width = static_cast<int>(r.width);
   k.height = static_cast<int>(r.height);
   return k;
@@ -339,7 +404,7 @@ std::optional<Keyframe> Localizer::KeyframeInfo(uint32_t id) const {
   std::shared_lock<std::shared_mutex> lock(mutex_);
   if (id >= keyframes_->size()) return std::nullopt;
   const detail::KeyframeView v = View(id);
-  Keyframe k = KeyframeOf(id, *v.record);
+  Keyframe k = KeyframeOf(id, *v.record, PoseOf(id, *v.record));
   if (Damaged(id).empty()) k.keypoints = detail::PayloadKeypoints(v);
   return k;
 }
@@ -348,8 +413,10 @@ std::vector<Keyframe> Localizer::Keyframes() const {
   std::shared_lock<std::shared_mutex> lock(mutex_);
   std::vector<Keyframe> out;
   out.reserve(keyframes_->size());
-  for (uint32_t id = 0; id < keyframes_->size(); ++id)
-    out.push_back(KeyframeOf(id, *View(id).record));
+  for (uint32_t id = 0; id < keyframes_->size(); ++id) {
+    const detail::KeyframeRecord& r = *View(id).record;
+    out.push_back(KeyframeOf(id, r, PoseOf(id, r)));
+  }
   return out;
 }
 

@@ -1,11 +1,13 @@
 // The Localizer's map file (Save, Load, ImportVersion1, ReadMapInfo).
 //
-// Version 2, little-endian, every section at a 64-byte aligned offset:
+// Version 3 (version 2 without the pose frame and flag is read too), little-endian, every
+// section at a 64-byte aligned offset:
 //   fixed head (64 bytes): magic "GTBWMAP\0", version, 0, header size, header checksum,
 //                          file size
 //   header:       vocabulary path and fingerprint, the preset's text, metres per pixel,
-//                 keyframe count, whether descriptors are kept, payload bytes per keypoint, and
-//                 the sections' offsets and sizes
+//                 keyframe count, whether descriptors are kept, payload bytes per keypoint,
+//                 (version 3:) the frame of the keyframe poses and whether they were optimised,
+//                 and the sections' offsets and sizes
 //   index header  BowDatabase's header (rows, counts, options, removed flags)   \  verified at
 //   index entries its entries, memory-mapped in place                           |  Load, 64 MB
 //   records       a 64-byte record per keyframe (detail::KeyframeRecord)        /  per checksum
@@ -38,7 +40,8 @@ namespace {
 
 constexpr char kMapMagic[8] = {'G', 'T', 'B', 'W', 'M', 'A', 'P', '\0'};
 constexpr uint32_t kVersion1 = 1;  // one framed blob, read whole (before issue 17)
-constexpr uint32_t kMapVersion = 2;
+constexpr uint32_t kVersion2 = 2;  // version 3 without the pose frame and flag
+constexpr uint32_t kMapVersion = 3;
 constexpr size_t kFixedHead = 64;
 constexpr size_t kAlign = 64;
 constexpr uint64_t kChunk = uint64_t{64} << 20;
@@ -145,9 +148,9 @@ MapFileInfo ParseHeader(const char* d, size_t size, const std::string& source, L
   uint32_t version;
   std::memcpy(&version, d + 8, 4);
   if (version == kVersion1) throw std::runtime_error(ConvertHint(source));
-  if (version != kMapVersion) {
+  if (version != kMapVersion && version != kVersion2) {
     fail("map format version " + std::to_string(version) +
-         " is not supported (this build reads version " + std::to_string(kMapVersion) + ")");
+         " is not supported (this build reads versions 2 and " + std::to_string(kMapVersion) + ")");
   }
   const uint64_t hs = Get64(d + 16);
   if (hs > kMaxHeader || hs > size - kFixedHead) fail("map file is truncated (header)");
@@ -170,6 +173,12 @@ MapFileInfo ParseHeader(const char* d, size_t size, const std::string& source, L
   info.keyframes = r.Get<uint64_t>();
   info.descriptors = r.Get<uint8_t>() != 0;
   *stride = r.Get<uint32_t>();
+  if (version >= 3) {
+    info.pose_frame = r.GetString(1u << 12);
+    const uint8_t optimised = r.Get<uint8_t>();
+    if (optimised > 1) r.Fail("invalid map header (pose flag)");
+    info.poses_optimised = optimised != 0;
+  }
   for (int s = 0; s < kSections; ++s) {
     layout->offset[s] = r.Get<uint64_t>();
     layout->size[s] = r.Get<uint64_t>();
@@ -232,7 +241,7 @@ void Localizer::CheckHeader(const MapFileInfo& info, const std::string& source,
   if (!(info.meters_per_pixel > 0) || !std::isfinite(info.meters_per_pixel)) {
     fail("the map's meters_per_pixel is not positive and finite");
   }
-  if (info.version >= kMapVersion && info.descriptors != options_.keep_descriptors) {
+  if (info.version >= kVersion2 && info.descriptors != options_.keep_descriptors) {
     fail(std::string("the map ") + (info.descriptors ? "keeps" : "keeps no") +
          " keyframe descriptors, this node's keep_descriptors is " +
          (options_.keep_descriptors ? "true" : "false"));
@@ -251,6 +260,9 @@ SaveStats Localizer::Save(const std::filesystem::path& path) const {
   std::vector<std::shared_ptr<const detail::KeyframeSegment>> segments;
   uint64_t generation = 0;
   double scale = 0;
+  std::shared_ptr<const std::vector<Pose2D>> moved;  // UpdateKeyframePoses' poses, as sealed
+  std::string pose_frame;
+  bool poses_optimised = false;
   for (bool sealed = false; !sealed;) {
     {
       std::shared_lock<std::shared_mutex> lock(mutex_);
@@ -266,6 +278,9 @@ SaveStats Localizer::Save(const std::filesystem::path& path) const {
     segments = keyframes_->Freeze();
     generation = generation_;
     scale = meters_per_pixel();  // the scale of the keyframes sealed
+    moved = moved_;
+    pose_frame = pose_frame_;
+    poses_optimised = poses_optimised_;
     stats.seal_ms = ms(t0, Clock::now());
     sealed = true;
   }
@@ -297,6 +312,8 @@ SaveStats Localizer::Save(const std::filesystem::path& path) const {
     h.Put<uint64_t>(n);
     h.Put<uint8_t>(options_.keep_descriptors ? 1 : 0);
     h.Put<uint32_t>(static_cast<uint32_t>(stride));
+    h.PutString(pose_frame);
+    h.Put<uint8_t>(poses_optimised ? 1 : 0);
     const uint64_t header_size = h.buffer().size() + kSections * 16;
     l.size[kIndexHeader] = frozen.header.size();
     l.size[kIndexEntries] = frozen.entries_bytes;
@@ -337,9 +354,16 @@ SaveStats Localizer::Save(const std::filesystem::path& path) const {
       std::vector<detail::KeyframeRecord> batch;
       batch.reserve(16384);
       uint64_t offset = 0;
+      size_t id = 0;
       for (const auto& s : segments) {
-        for (size_t i = 0; i < s->size(); ++i) {
+        for (size_t i = 0; i < s->size(); ++i, ++id) {
           detail::KeyframeRecord r = *s->Get(i).record;
+          if (moved && id < moved->size() && !std::isnan((*moved)[id].x)) {
+            r.x = (*moved)[id].x;
+            r.y = (*moved)[id].y;
+            r.theta = (*moved)[id].theta;
+            r.flags |= detail::KeyframeRecord::kHasPose;
+          }
           r.payload_offset = offset;
           offset += static_cast<uint64_t>(r.num_keypoints) * stride;
           batch.push_back(r);
@@ -507,6 +531,9 @@ size_t Localizer::Load(const std::filesystem::path& path, bool adopt_scale) {
   database_.swap(db);
   keyframes_.swap(store);
   if (adopt_scale) meters_per_pixel_ = info.meters_per_pixel;
+  moved_.reset();
+  pose_frame_ = info.pose_frame;
+  poses_optimised_ = info.poses_optimised;
   ++generation_;
   lock.unlock();  // the old map is freed without holding up callers
   return info.keyframes;
@@ -575,6 +602,9 @@ void Localizer::ImportVersion1(const std::filesystem::path& path) {
   std::unique_lock<std::shared_mutex> lock(mutex_);
   database_.swap(db);
   keyframes_.swap(store);
+  moved_.reset();
+  pose_frame_.clear();  // a version-1 map does not say
+  poses_optimised_ = false;
   ++generation_;
   lock.unlock();
 }

@@ -63,7 +63,8 @@ bool Mapper::IsKeyframe(const std::optional<Pose2D>& pose) {
 }
 
 MapperStep Mapper::Process(const ProcessedImage& image, int64_t stamp_ns,
-                           const std::optional<Pose2D>& pose, bool insert) {
+                           const std::optional<Pose2D>& pose, bool insert,
+                           const std::optional<Pose2D>& motion) {
   std::lock_guard<std::mutex> lock(mutex_);
   MapperStep step;
   const uint32_t n = static_cast<uint32_t>(localizer_->size());
@@ -71,7 +72,8 @@ MapperStep Mapper::Process(const ProcessedImage& image, int64_t stamp_ns,
   const LocalizationOptions& verification = localizer_->options().retrieval.verification;
   step.candidates = localizer_->Query(image, static_cast<size_t>(verification.candidates), true,
                                       n > recent ? n - recent : 0, n);
-  if (insert && IsKeyframe(pose)) step.keyframe = localizer_->Add(image, stamp_ns, pose);
+  if (insert && IsKeyframe(motion ? motion : pose))
+    step.keyframe = localizer_->Add(image, stamp_ns, pose);
 
   // The verified candidates in the order a closure is chosen: the preset's choice first, then
   // by inliers.

@@ -10,6 +10,7 @@
 #include <visualization_msgs/MarkerArray.h>
 
 #include "ground_texture_bow/CandidateList.h"
+#include "ground_texture_bow/KeyframeStamp.h"
 #include "ground_texture_bow/LoopClosure.h"
 #include "ground_texture_bow/ros/conversions.h"
 
@@ -36,9 +37,12 @@ LocalizerServer::LocalizerServer(ros::NodeHandle nh, ros::NodeHandle pnh,
     scale_known_ = true;
     scale_source_ = "~meters_per_pixel";
   }
+  localizer_->SetPoseFrame(options_.map_frame);
   if (!options_.map.empty()) {
+    CheckMapFrame(options_.map);
     // Without ~meters_per_pixel the map's scale is taken, and the camera's checked against it.
     localizer_->Load(options_.map, options_.meters_per_pixel <= 0);
+    if (localizer_->pose_frame().empty()) localizer_->SetPoseFrame(options_.map_frame);
     if (!scale_known_) {
       scale_known_ = true;
       scale_from_map_ = true;
@@ -52,6 +56,7 @@ LocalizerServer::LocalizerServer(ros::NodeHandle nh, ros::NodeHandle pnh,
   loop_pub_ = pnh_.advertise<ground_texture_bow::LoopClosure>("loop_closures", 50);
   candidates_pub_ = pnh_.advertise<ground_texture_bow::CandidateList>("candidates", 10);
   markers_pub_ = pnh_.advertise<visualization_msgs::MarkerArray>("markers", 1, true);
+  keyframes_pub_ = pnh_.advertise<ground_texture_bow::KeyframeStamp>("keyframes", 1000);
   image_transport::ImageTransport pit(pnh_);
   debug_pub_ = pit.advertise("debug_image", 1);
 
@@ -81,6 +86,8 @@ LocalizerServer::LocalizerServer(ros::NodeHandle nh, ros::NodeHandle pnh,
   }
   // amcl's topic, in the node's namespace (remap it like amcl's).
   initialpose_sub_ = nh_.subscribe("initialpose", 2, &LocalizerServer::InitialPoseCallback, this);
+  keyframe_poses_sub_ =
+      pnh_.subscribe("keyframe_poses", 10, &LocalizerServer::KeyframePosesCallback, this);
 
   worker_ = std::thread([this] { WorkerLoop(); });
   info_topic_ = image_transport::getCameraInfoTopic(nh_.resolveName("image"));
@@ -111,6 +118,7 @@ LocalizerServer::~LocalizerServer() {
   compressed_sub_.shutdown();
   info_sub_.shutdown();
   initialpose_sub_.shutdown();
+  keyframe_poses_sub_.shutdown();
   tf_timer_.stop();
   {
     std::lock_guard<std::mutex> lock(slot_mutex_);
@@ -412,6 +420,61 @@ std::optional<gtbow::Pose2D> LocalizerServer::LookupFootprint(const std::string&
   }
 }
 
+std::optional<gtbow::Pose2D> LocalizerServer::BackendPose(const gtbow::Pose2D& odom) {
+  geometry_msgs::TransformStamped t;
+  try {
+    t = tf_buffer_.lookupTransform(options_.map_frame, options_.odom_frame, ros::Time(0),
+                                   ros::Duration(options_.tf_timeout));
+  } catch (const tf2::TransformException& e) {
+    missing_tf_++;
+    ROS_WARN_THROTTLE(2.0,
+                      "ground_texture_bow: no %s -> %s from the SLAM backend yet (the keyframe "
+                      "gets its pose from the backend's keyframe_poses): %s",
+                      options_.map_frame.c_str(), options_.odom_frame.c_str(), e.what());
+    return std::nullopt;
+  }
+  const auto& q = t.transform.rotation;
+  const gtbow::Pose2D map_from_odom{t.transform.translation.x, t.transform.translation.y,
+                                    YawOf(q.x, q.y, q.z, q.w)};
+  return gtbow::Compose(map_from_odom, odom);
+}
+
+void LocalizerServer::CheckMapFrame(const std::string& path) const {
+  const gtbow::MapFileInfo info = gtbow::Localizer::ReadMapInfo(path);
+  if (!info.pose_frame.empty() && info.pose_frame != options_.map_frame) {
+    throw std::runtime_error(path + ": the map's keyframe poses are in frame '" + info.pose_frame +
+                             "' (" + (info.poses_optimised ? "optimised" : "not optimised") +
+                             "), this node's ~map_frame is '" + options_.map_frame +
+                             "': its fixes would be published in the wrong frame");
+  }
+}
+
+void LocalizerServer::KeyframePosesCallback(const ground_texture_bow::KeyframePosesConstPtr& msg) {
+  const std::string frame = localizer_->pose_frame();
+  if (msg->header.frame_id != frame || msg->ids.size() != msg->stamps.size() ||
+      msg->ids.size() != msg->poses.size()) {
+    pose_updates_refused_++;
+    ROS_WARN_THROTTLE(5.0,
+                      "ground_texture_bow: keyframe_poses ignored: %zu ids, %zu stamps and %zu "
+                      "poses in frame '%s'; the map's poses are in '%s'",
+                      msg->ids.size(), msg->stamps.size(), msg->poses.size(),
+                      msg->header.frame_id.c_str(), frame.c_str());
+    return;
+  }
+  std::vector<gtbow::KeyframePose> poses;
+  poses.reserve(msg->ids.size());
+  try {
+    for (size_t i = 0; i < msg->ids.size(); ++i) {
+      poses.push_back({msg->ids[i], ToNanoseconds(msg->stamps[i]), FromPose2DMsg(msg->poses[i])});
+    }
+    keyframes_reposed_ += localizer_->UpdateKeyframePoses(poses);
+    keyframe_poses_stamp_ns_ = msg->header.stamp.toNSec();
+  } catch (const std::exception& e) {
+    pose_updates_refused_++;
+    ROS_WARN_THROTTLE(5.0, "ground_texture_bow: keyframe_poses ignored: %s", e.what());
+  }
+}
+
 void LocalizerServer::ProcessImage(const Pending& msg) {
   const auto t0 = std::chrono::steady_clock::now();
   std_msgs::Header header = msg.header();
@@ -444,9 +507,15 @@ void LocalizerServer::ProcessImage(const Pending& msg) {
     }
   }
   const Mode mode = mode_.load();
-  std::optional<gtbow::Pose2D> pose;
+  std::optional<gtbow::Pose2D> pose, motion;
   if (options_.use_tf && mode == Mode::kMapping) {
-    pose = LookupFootprint(header.frame_id, header.stamp, options_.map_frame, true);
+    if (options_.slam_backend) {
+      // Odometry at the image's time; map -> odom as the backend last corrected it.
+      motion = LookupFootprint(header.frame_id, header.stamp, options_.odom_frame, true);
+      if (motion) pose = BackendPose(*motion);
+    } else {
+      pose = LookupFootprint(header.frame_id, header.stamp, options_.map_frame, true);
+    }
   }
   const gtbow::ProcessedImage img = localizer_->Process(floor_image);
   std::vector<gtbow::Vec2> inliers;
@@ -495,10 +564,16 @@ void LocalizerServer::ProcessImage(const Pending& msg) {
   } else {
     // Mapping (keyframes added) or external (a backend adds them): the engine decides.
     const gtbow::MapperStep step =
-        mapper_->Process(img, ToNanoseconds(header.stamp), pose, mode == Mode::kMapping);
+        mapper_->Process(img, ToNanoseconds(header.stamp), pose, mode == Mode::kMapping, motion);
     const uint32_t query_id =
         step.keyframe ? *step.keyframe : ground_texture_bow::CandidateList::NO_ID;
-    if (step.keyframe) changes_++;
+    if (step.keyframe) {
+      changes_++;
+      ground_texture_bow::KeyframeStamp k;
+      k.header = header;
+      k.id = *step.keyframe;
+      keyframes_pub_.publish(k);
+    }
     ground_texture_bow::CandidateList list;
     list.header = header;
     list.query_id = query_id;
@@ -633,6 +708,10 @@ void LocalizerServer::Diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat
   stat.add("fixes held (odometry gate)", held_fixes_.load());
   stat.add("relocalizations", relocalizations_.load());
   stat.add("images rectified", rectified_.load());
+  stat.add("pose frame", localizer_->pose_frame() +
+                             (localizer_->poses_optimised() ? " (optimised by a backend)" : ""));
+  stat.add("keyframes re-posed (keyframe_poses)", keyframes_reposed_.load());
+  stat.add("keyframe_poses refused (frame, malformed)", pose_updates_refused_.load());
   stat.add("autosaves", autosaves_.load());
   stat.add("autosave errors", autosave_errors_.load());
   stat.add("meters per pixel", scale_known_ ? localizer_->meters_per_pixel() : 0.0);

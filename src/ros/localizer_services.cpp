@@ -118,9 +118,11 @@ bool LocalizerServer::OnLoadMap(ground_texture_bow::LoadMap::Request& req,
   res.status = Serve("load_map", true, [&] {
     if (req.path.empty()) throw std::invalid_argument("empty path");
     CheckAbsolutePath(req.path, "load_map: path");
+    CheckMapFrame(req.path);
     // Without ~meters_per_pixel the map's scale is taken, and the camera's is checked against it.
     const bool adopt = options_.meters_per_pixel <= 0;
     res.keyframes = static_cast<uint32_t>(localizer_->Load(req.path, adopt));
+    if (localizer_->pose_frame().empty()) localizer_->SetPoseFrame(options_.map_frame);
     if (adopt) {
       scale_known_ = true;
       scale_from_map_ = true;
@@ -167,6 +169,10 @@ bool LocalizerServer::OnGetInfo(ground_texture_bow::GetInfo::Request&,
     res.fixes_held = held_fixes_.load();
     res.relocalizations = relocalizations_.load();
     res.meters_per_pixel = scale_known_ ? localizer_->meters_per_pixel() : 0.0;
+    res.pose_frame = localizer_->pose_frame();
+    res.poses_optimised = localizer_->poses_optimised();
+    res.keyframes_reposed = keyframes_reposed_.load();
+    res.keyframe_poses_stamp.fromNSec(keyframe_poses_stamp_ns_.load());
     {
       std::lock_guard<std::mutex> lock(state_mutex_);
       res.scale_source = scale_source_;

@@ -7,11 +7,17 @@
 // camera's optical frame; the node turns it into a relation between base poses with the
 // camera's mounting (TF base frame -> the closure's header frame, or ~camera_offset), and the
 // pose graph (include/ground_texture_bow/backend/pose_graph.h) does the rest.
-// Outputs: TF map -> odom, ~path (nav_msgs/Path of the graph's nodes), and the optimised
-// trajectory as CSV (~save_trajectory, and ~trajectory_csv at shutdown).
+// Outputs: TF map -> odom, ~path (nav_msgs/Path of the graph's nodes), the optimised
+// trajectory as CSV (~save_trajectory, and ~trajectory_csv at shutdown), and the keyframes'
+// optimised poses: the localizer announces each keyframe it adds (its ~keyframes: id, image
+// stamp, camera frame); after each optimisation the backend publishes on `keyframe_poses` the
+// camera footprint in map_frame at each keyframe's stamp (PoseGraph::PoseAt and the camera's
+// mounting) for every keyframe whose pose changed, so that the localizer's map, and the map
+// file it saves, carries the optimised poses (launch/backend.launch wires both ways).
 //
-// Run the localizer in mapping mode with its ~map_frame set to the odometry frame: its
-// keyframe poses are then odometry, and its closures relative poses between image stamps.
+// Run the localizer in mapping mode with ~slam_backend (launch/backend.launch): it places each
+// keyframe through the latest map -> odom and the odometry at the image's time, and its
+// closures are relative poses between image stamps.
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
@@ -33,6 +39,8 @@
 #include <tf2_ros/transform_broadcaster.h>
 #include <tf2_ros/transform_listener.h>
 
+#include "ground_texture_bow/KeyframePoses.h"
+#include "ground_texture_bow/KeyframeStamp.h"
 #include "ground_texture_bow/LoopClosure.h"
 #include "ground_texture_bow/SaveTrajectory.h"
 #include "ground_texture_bow/backend/pose_graph.h"
@@ -131,6 +139,8 @@ class Backend {
     timer_ = nh_.createTimer(ros::Duration(1.0 / optimize_rate_), &Backend::OnTimer, this);
     odom_sub_ = nh_.subscribe("odom", 2000, &Backend::OnOdometry, this);
     closure_sub_ = nh_.subscribe("loop_closures", 2000, &Backend::OnClosure, this);
+    keyframe_sub_ = nh_.subscribe("keyframes", 2000, &Backend::OnKeyframe, this);
+    keyframe_poses_pub_ = nh_.advertise<ground_texture_bow::KeyframePoses>("keyframe_poses", 10);
     const PoseGraphOptions& o = graph_.options();
     ROS_INFO("pose_graph_backend: loss %s (%.1f sigma), consistency check %s, map frame %s",
              o.loss.c_str(), o.loss_scale, o.consistency_check ? "on" : "off", map_frame_.c_str());
@@ -186,6 +196,57 @@ class Backend {
       return;
     }
     DrainWaiting();
+    // map -> odom from the first odometry on (the identity until a closure moves it): a
+    // localizer placing keyframes through it needs it before the first optimisation.
+    if (!last_tf_) PublishTf();
+  }
+
+  // A keyframe the localizer added; a new stamp for a known id is a new map (reset or loaded).
+  void OnKeyframe(const ground_texture_bow::KeyframeStamp& msg) {
+    if (msg.header.stamp.isZero() ||
+        (msg.header.frame_id.empty() && camera_frame_.empty() && !fixed_offset_)) {
+      return Reject("keyframe " + std::to_string(msg.id) + ": zero stamp or no camera frame");
+    }
+    KeyframeEntry& k = keyframes_[msg.id];
+    const int64_t stamp = Ns(msg.header.stamp);
+    if (k.stamp_ns != stamp) k = KeyframeEntry{};
+    k.stamp_ns = stamp;
+    k.frame = camera_frame_.empty() ? msg.header.frame_id : camera_frame_;
+  }
+
+  // The camera footprint in map_frame at each keyframe's stamp that the odometry covers, for the
+  // keyframes whose pose changed since it was last sent (or was never sent). Returns the stamp
+  // of the message published (zero: none).
+  ros::Time PublishKeyframePoses() {
+    ground_texture_bow::KeyframePoses msg;
+    for (auto& [id, k] : keyframes_) {
+      if (!graph_.Covers(k.stamp_ns)) continue;
+      const std::optional<Pose2D> e = CameraOffset(k.frame);
+      if (!e) continue;
+      const Pose2D p = gtbow::Compose(graph_.PoseAt(k.stamp_ns), *e);
+      constexpr double kSame = 1e-7;  // m and rad: below what a map's pose carries
+      if (k.sent && std::abs(p.x - k.sent->x) < kSame && std::abs(p.y - k.sent->y) < kSame &&
+          std::abs(gtbow::WrapAngle(p.theta - k.sent->theta)) < kSame) {
+        continue;
+      }
+      k.sent = p;
+      msg.ids.push_back(id);
+      ros::Time t;
+      t.fromNSec(static_cast<uint64_t>(k.stamp_ns));
+      msg.stamps.push_back(t);
+      msg.poses.push_back(
+          gtbow_ros::ToPose2DMsg(gtbow::Pose2D{p.x, p.y, gtbow::WrapAngle(p.theta)}));
+    }
+    if (msg.ids.empty()) return ros::Time();
+    msg.header.frame_id = map_frame_;
+    msg.header.stamp = ros::Time::now();
+    // Distinct stamps for consecutive messages, so that a caller can tell which one was applied.
+    if (msg.header.stamp <= last_poses_stamp_) {
+      msg.header.stamp = last_poses_stamp_ + ros::Duration(0, 1000);
+    }
+    last_poses_stamp_ = msg.header.stamp;
+    keyframe_poses_pub_.publish(msg);
+    return msg.header.stamp;
   }
 
   void OnClosure(const LoopClosure& msg) {
@@ -290,6 +351,11 @@ class Backend {
 
   void OnTimer(const ros::TimerEvent&) {
     Optimize();
+    PublishKeyframePoses();
+    PublishTf();
+  }
+
+  void PublishTf() {
     if (publish_tf_ && graph_.HasOdometry() && !odom_frame_.empty()) {
       const Pose2D m = graph_.MapFromOdom();
       // TF ignores a repeated stamp: once the odometry stops, a changed correction goes out
@@ -375,6 +441,7 @@ class Backend {
     res.closures_pending = static_cast<uint32_t>(graph_.pending());
     res.closures_rejected = static_cast<uint32_t>(rejected_input_);
     res.closures_downweighted = static_cast<uint32_t>(last_downweighted_);
+    res.keyframe_poses_stamp = PublishKeyframePoses();
     if (req.closure_query_stamps.size() != req.closure_match_stamps.size()) {
       res.status =
           gtbow_ros::MakeStatus(ground_texture_bow::Status::INVALID_ARGUMENT,
@@ -419,14 +486,21 @@ class Backend {
     LoopClosure msg;
     ros::Time received;
   };
+  struct KeyframeEntry {
+    int64_t stamp_ns = 0;
+    std::string frame;           // the camera frame its mounting is looked up for
+    std::optional<Pose2D> sent;  // the pose last published for it
+  };
 
   ros::NodeHandle nh_, pnh_;
   PoseGraph graph_;
   tf2_ros::Buffer tf_buffer_;
   tf2_ros::TransformListener tf_listener_;
   tf2_ros::TransformBroadcaster tf_broadcaster_;
-  ros::Subscriber odom_sub_, closure_sub_;
-  ros::Publisher path_pub_;
+  ros::Subscriber odom_sub_, closure_sub_, keyframe_sub_;
+  ros::Publisher path_pub_, keyframe_poses_pub_;
+  std::map<uint32_t, KeyframeEntry> keyframes_;  // the localizer's keyframes, by id
+  ros::Time last_poses_stamp_;
   ros::ServiceServer save_srv_;
   ros::Timer timer_;
   std::string map_frame_, odom_frame_, base_frame_, camera_frame_, trajectory_csv_;

@@ -49,6 +49,9 @@ void ServerOptions::Check() const {
   };
   need(!vocabulary.empty() || !map.empty(), "~vocabulary (or ~map) must be set");
   need(!map_frame.empty(), "~map_frame must not be empty");
+  need(!slam_backend || (!odom_frame.empty() && odom_frame != map_frame && use_tf),
+       "~slam_backend needs ~use_tf and an ~odom_frame other than ~map_frame (the backend "
+       "publishes map_frame -> odom_frame)");
   need(transport == "raw" || transport == "compressed", "~transport must be raw or compressed");
   need(tf_timeout >= 0, "~tf_timeout must be >= 0");
   need(localized_timeout > 0, "~localized_timeout must be > 0");
@@ -100,6 +103,7 @@ ServerOptions ReadOptions(const ros::NodeHandle& pnh) {
   o.mode = ParseMode(mode);
   pnh.param("map_frame", o.map_frame, o.map_frame);
   pnh.param("odom_frame", o.odom_frame, o.odom_frame);
+  pnh.param("slam_backend", o.slam_backend, o.slam_backend);
   pnh.param("camera_frame", o.camera_frame, o.camera_frame);
   pnh.param("transport", o.transport, o.transport);
   pnh.param("meters_per_pixel", o.meters_per_pixel, o.meters_per_pixel);

@@ -28,12 +28,17 @@ void PrintInfo(const std::string& path) {
   std::printf(
       "%s\n  format version  %u%s\n  keyframes       %llu\n  descriptors     %s\n"
       "  file size       %.1f MB (%.0f bytes per keyframe)\n  vocabulary      %s\n"
-      "  meters/pixel    %g\n",
+      "  meters/pixel    %g\n  pose frame      %s\n",
       path.c_str(), i.version, i.version == 1 ? " (convert it: gtbow convert-map)" : "",
       static_cast<unsigned long long>(i.keyframes), i.descriptors ? "kept" : "not kept",
       static_cast<double>(i.file_bytes) / 1e6,
       i.keyframes ? static_cast<double>(i.file_bytes) / static_cast<double>(i.keyframes) : 0.0,
-      i.vocabulary_path.c_str(), i.meters_per_pixel);
+      i.vocabulary_path.c_str(), i.meters_per_pixel,
+      i.version < 3 ? "(not recorded before format version 3)"
+                    : ((i.pose_frame.empty() ? std::string("(none given)") : i.pose_frame) +
+                       (i.poses_optimised ? ", poses optimised by a SLAM backend"
+                                          : ", poses as the keyframes were added"))
+                          .c_str());
 }
 
 // A localizer for the map `path` (header `info`): the map's preset and scale, with the
@@ -58,7 +63,7 @@ std::unique_ptr<Localizer> LocalizerFor(const std::string& path, const MapFileIn
 // Every keyframe's id, stamp and pose (map frame), as CSV.
 void WritePoses(const std::string& path, const std::string& vocab, const std::string& out) {
   const MapFileInfo info = Localizer::ReadMapInfo(path);
-  if (info.version != 2)
+  if (info.version < 2)
     throw std::invalid_argument(path + ": convert it first (gtbow convert-map)");
   const auto loc = LocalizerFor(path, info, vocab, info.descriptors);
   loc->Load(path);
@@ -110,7 +115,8 @@ void RegisterMapCommands(CLI::App& app) {
 
   auto a = std::make_shared<ConvertArgs>();
   CLI::App* cmd = app.add_subcommand(
-      "convert-map", "Convert a map of format version 1 to version 2 (memory-mapped loading)");
+      "convert-map",
+      "Convert a map of format version 1 to the current one (memory-mapped loading)");
   cmd->add_option("--in", a->in, "Map file of version 1")->required()->check(CLI::ExistingFile);
   cmd->add_option("--out", a->out, "New map file (written atomically)")->required();
   cmd->add_option("--vocab", a->vocab, "Vocabulary file (default: the path recorded in the map)");

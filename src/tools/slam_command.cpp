@@ -49,8 +49,9 @@ struct SlamArgs {
   std::string params = GTBOW_CONFIG_DIR "/localizer.yaml";
   std::string backend = GTBOW_CONFIG_DIR "/backend.yaml";
   std::string out = "gtbow_slam";
-  double start = 1000.0;  // s: the first image's stamp
-  double rate = 10.0;     // images per second
+  std::string map_frame = "map";  // the frame the saved map's poses are in
+  double start = 1000.0;          // s: the first image's stamp
+  double rate = 10.0;             // images per second
   int exclude_recent = -1, temporal_consistency = -1;
   double optimize_every = 1.0;  // s of drive between optimisations (the backend's timer)
   std::string cache = DefaultCacheDir().string();
@@ -180,9 +181,9 @@ void RunSlam(const SlamArgs& a) {
   backend::PoseGraph graph(po);
 
   struct KeyframeOf {
+    uint32_t id;
     size_t image;
     int64_t stamp;
-    ProcessedImage processed;
   };
   std::vector<KeyframeOf> keyframes;
   struct ClosureRow {
@@ -205,7 +206,7 @@ void RunSlam(const SlamArgs& a) {
     graph.AddOdometry(stamps[i], o);
     ProcessedImage img = loc.Process(ds.LoadGray(names[i]));
     const MapperStep step = mapper.Process(img, stamps[i], o);
-    if (step.keyframe) keyframes.push_back({i, stamps[i], std::move(img)});
+    if (step.keyframe) keyframes.push_back({*step.keyframe, i, stamps[i]});
     if (step.closure >= 0 && step.publish) {
       const Candidate& c = step.candidates[static_cast<size_t>(step.closure)];
       backend::Closure bc;
@@ -253,17 +254,18 @@ void RunSlam(const SlamArgs& a) {
   ate_odom.Finish();
   ate_opt.Finish();
   WriteFileAtomic(fs::path(a.out) / "trajectory.csv", traj);
-  // The keyframes, and the map with their optimised poses.
+  // The keyframes, and the map with their optimised poses: the mapper's own map, its keyframes
+  // re-posed as the localizer node re-poses them from pose_graph_backend's keyframe_poses.
   std::string kfs = "id,image,stamp,odom_x,odom_y,odom_theta,x,y,theta,error_odom_mm,error_mm\n";
-  Localizer optimised(vocab, vocab_path, lo);
+  std::vector<KeyframePose> moved;
   for (size_t k = 0; k < keyframes.size(); ++k) {
     const size_t i = keyframes[k].image;
     const Pose2D& o = odom.at(names[i]);
     const Pose2D p = graph.PoseAt(keyframes[k].stamp);
-    optimised.Add(keyframes[k].processed, keyframes[k].stamp, p);
-    kfs += std::to_string(k) + "," + names[i] + "," + Num(keyframes[k].stamp * 1e-9) + "," +
-           Num(o.x) + "," + Num(o.y) + "," + Num(o.theta) + "," + Num(p.x) + "," + Num(p.y) + "," +
-           Num(p.theta);
+    moved.push_back({keyframes[k].id, keyframes[k].stamp, p});
+    kfs += std::to_string(keyframes[k].id) + "," + names[i] + "," + Num(keyframes[k].stamp * 1e-9) +
+           "," + Num(o.x) + "," + Num(o.y) + "," + Num(o.theta) + "," + Num(p.x) + "," + Num(p.y) +
+           "," + Num(p.theta);
     if (has_truth) {
       const Pose2D t = truth(i);
       kf_odom.Add(o, t);
@@ -278,8 +280,12 @@ void RunSlam(const SlamArgs& a) {
   kf_odom.Finish();
   kf_opt.Finish();
   WriteFileAtomic(fs::path(a.out) / "keyframes.csv", kfs);
+  if (loc.UpdateKeyframePoses(moved) != moved.size()) {
+    throw std::logic_error("gtbow slam: the map did not take every optimised keyframe pose");
+  }
+  loc.SetPoseFrame(a.map_frame);
   const fs::path map_path = fs::path(a.out) / "map.gtmap";
-  optimised.Save(map_path);
+  loc.Save(map_path);
   // The closures: correct when the match keyframe's true pose composed with the relative pose
   // is the query's true pose within 4.8 mm and 1.5 degrees.
   std::string cl =
@@ -432,6 +438,10 @@ void RegisterSlam(CLI::App& app) {
   cmd->add_option("--temporal-consistency", a->temporal_consistency,
                   "Override ~temporal_consistency");
   cmd->add_option("-o,--out", a->out, "Output directory")->capture_default_str();
+  cmd->add_option("--map-frame", a->map_frame,
+                  "The frame the saved map records for its optimised poses (the backend's "
+                  "~map_frame)")
+      ->capture_default_str();
   cmd->add_option("--cache", a->cache, "Feature and vocabulary cache directory");
   cmd->add_flag("--no-cache", a->no_cache, "Neither read nor write the cache");
   cmd->add_flag("--no-plots", a->no_plots, "Skip the plot");

@@ -152,6 +152,14 @@ void RegisterSynth(CLI::App& app) {
       ->capture_default_str();
   cmd->add_option("--drive-spacing", o.drive_spacing, "Metres between drive images")
       ->capture_default_str();
+  cmd->add_option("--later-drives", o.later_drive_days,
+                  "Later sessions of the drive on these days (splits drive_dayDDD, each with "
+                  "drive_dayDDD_odometry.csv from the origin), each starting a third of a lap "
+                  "further along")
+      ->delimiter(',');
+  cmd->add_option("--later-drive-length", o.later_drive_length,
+                  "Metres of each later drive (0: as --drive)")
+      ->capture_default_str();
   cmd->add_option("--odom-scale-bias", o.odometry.scale_bias,
                   "Odometry: systematic distance scale error, fraction")
       ->capture_default_str();

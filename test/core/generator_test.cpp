@@ -95,6 +95,55 @@ TEST(Generator, OnlySomeSplitsKeepTheFullDatasetsPoses) {
   EXPECT_THROW(o.Check(), std::invalid_argument);
 }
 
+// Later sessions of a drive: their own split and odometry file, on their day and in their own
+// visit, the same laps started a third of a lap further on for each, and odometry that starts
+// at the origin (a robot after it boots) while following the true motion.
+TEST(Generator, LaterDrivesStartElsewhereWithOdometryFromTheOrigin) {
+  SynthOptions o;
+  o.area_width = 1.2;
+  o.area_height = 0.8;
+  o.drive_length = 4.0;
+  o.drive_spacing = 0.02;
+  o.later_drive_days = {30, 90};
+  o.later_drive_length = 1.0;
+  o.only = {"drive"};
+  const DatasetPlan plan = PlanDataset(o);
+  ASSERT_EQ(plan.splits.size(), 3u);
+  ASSERT_EQ(plan.splits.at("drive").size(), 201u);
+  std::map<std::string, const PlannedImage*> by_name;
+  for (const auto& im : plan.images) by_name[im.name] = &im;
+  const Pose2D first = by_name.at(plan.splits.at("drive")[0])->pose;
+  std::set<uint64_t> visits;
+  int k = 0;
+  for (const char* split : {"drive_day030", "drive_day090"}) {
+    const auto& names = plan.splits.at(split);
+    const auto& odom = plan.later_drive_odometry.at(split);
+    ASSERT_EQ(names.size(), 51u) << split;
+    ASSERT_EQ(odom.size(), names.size());
+    const PlannedImage& start = *by_name.at(names[0]);
+    EXPECT_EQ(start.day, k == 0 ? 30.0 : 90.0);
+    visits.insert(start.visit);
+    // Elsewhere on the laps: a third (two thirds) of a lap from the first drive's start.
+    EXPECT_GT(std::hypot(start.pose.x - first.x, start.pose.y - first.y), 0.2) << split;
+    // Odometry from the origin, then the true motion up to its noise (a few mm over a metre).
+    EXPECT_EQ(odom[0].pose.x, 0.0);
+    EXPECT_EQ(odom[0].pose.y, 0.0);
+    EXPECT_EQ(odom[0].pose.theta, 0.0);
+    const Pose2D truth_rel = Compose(Inverse(start.pose), by_name.at(names.back())->pose);
+    const Pose2D odom_rel = odom.back().pose;
+    EXPECT_LT(std::hypot(truth_rel.x - odom_rel.x, truth_rel.y - odom_rel.y), 0.02) << split;
+    EXPECT_GT(std::hypot(truth_rel.x, truth_rel.y), 0.5) << split;
+    ++k;
+  }
+  EXPECT_EQ(visits.size(), 2u);
+  SynthOptions bad = o;
+  bad.drive_length = 0;
+  EXPECT_THROW(PlanDataset(bad), std::invalid_argument);
+  bad = o;
+  bad.later_drive_days = {0};
+  EXPECT_THROW(PlanDataset(bad), std::invalid_argument);
+}
+
 TEST(Generator, SquareAreaForImages) {
   SynthOptions o;
   for (int n : {100, 32000}) {

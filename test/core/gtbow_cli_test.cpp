@@ -359,7 +359,7 @@ TEST_F(GtbowCli, ConvertMapTurnsAVersionOneMapIntoOneThatLoads) {
       << r.output;
   r = RunGtbow("convert-map --in " + Out("old.gtmap") + " --out " + Out("new.gtmap"));
   ASSERT_EQ(r.code, 0) << r.output;
-  EXPECT_NE(r.output.find("format version  2"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("format version  3"), std::string::npos) << r.output;
   EXPECT_NE(r.output.find("keyframes       4"), std::string::npos) << r.output;
   Localizer loaded(fuzz::FixtureVocabulary(), fuzz::FixtureVocabularyPath(),
                    fuzz::FixtureOptions());
@@ -377,7 +377,7 @@ TEST_F(GtbowCli, ConvertMapTurnsAVersionOneMapIntoOneThatLoads) {
   // Already converted; the same file in and out; a damaged input: each refused, nothing written.
   r = RunGtbow("convert-map --in " + Out("new.gtmap") + " --out " + Out("again.gtmap"));
   EXPECT_NE(r.code, 0);
-  EXPECT_NE(r.output.find("already format version 2"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("already format version 3"), std::string::npos) << r.output;
   r = RunGtbow("convert-map --in " + Out("old.gtmap") + " --out " + Out("old.gtmap"));
   EXPECT_NE(r.code, 0);
   EXPECT_NE(r.output.find("--out must differ from --in"), std::string::npos) << r.output;

@@ -17,6 +17,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "../fuzz/fuzz_util.h"
+#include "ground_texture_bow/core/binary_io.h"
 #include "ground_texture_bow/core/file_util.h"
 #include "ground_texture_bow/eval/synth/generator.h"
 #include "map_v1.h"
@@ -586,7 +587,128 @@ TEST_F(LocalizerFiles, VersionOneMapsAreRefusedWithTheirConversionAndConvertExac
   Localizer converted(s.vocabulary, "test.gtvoc", Options());
   converted.Load(dir() / "new.gtmap");
   ExpectSameAnswers(built, converted, "converted");
-  EXPECT_EQ(Localizer::ReadMapInfo(dir() / "new.gtmap").version, 2u);
+  EXPECT_EQ(Localizer::ReadMapInfo(dir() / "new.gtmap").version, 3u);
+}
+
+// A map made with drifting odometry, re-posed by a SLAM backend's optimisation (the node's
+// keyframe_poses): fixes follow the new poses, the map file carries them with its pose frame
+// and the optimised flag, and an update meant for another map (unknown id, other stamp)
+// changes nothing.
+TEST_F(LocalizerFiles, KeyframePosesFromABackendAreUsedSavedAndRecorded) {
+  const Scene& s = TheScene();
+  // Odometry that drifted: every keyframe 20 mm and 2 degrees off, a keyframe without a pose.
+  const Pose2D drift{0.02, -0.01, 0.035};
+  Localizer loc(s.vocabulary, "test.gtvoc", Options());
+  loc.SetPoseFrame("map");
+  std::vector<KeyframePose> truth;
+  for (size_t i = 0; i < s.db_images.size(); ++i) {
+    const std::optional<Pose2D> odom =
+        i == 4 ? std::nullopt : std::optional<Pose2D>(Compose(drift, s.db_poses[i]));
+    const uint32_t id = loc.Add(loc.Process(s.db_images[i]), 1000 + static_cast<int64_t>(i), odom);
+    truth.push_back({id, 1000 + static_cast<int64_t>(i), s.db_poses[i]});
+  }
+  auto fixes_ok = [&](const Localizer& l) {
+    int ok = 0;
+    for (size_t q = 0; q < s.revisits.size(); ++q) {
+      const Localization fix = l.Localize(l.Process(s.revisits[q]));
+      const Pose2D& t = s.revisit_poses[q];
+      const Pose2D& p = fix.estimate.floor_from_query;
+      ok += fix.success && 1000 * std::hypot(p.x - t.x, p.y - t.y) < 4.8 &&
+            std::abs(WrapAngle(p.theta - t.theta)) < 1.5 * M_PI / 180;
+    }
+    return ok;
+  };
+  const int revisits = static_cast<int>(s.revisits.size());
+  EXPECT_EQ(fixes_ok(loc), 0) << "the drifted map should place no revisit right";
+  EXPECT_FALSE(loc.KeyframeInfo(4)->has_pose);
+  loc.Save(dir() / "odometry.gtmap");
+  EXPECT_FALSE(Localizer::ReadMapInfo(dir() / "odometry.gtmap").poses_optimised);
+
+  // Updates for another map: an id beyond the map, a stamp that is not the keyframe's.
+  EXPECT_EQ(loc.UpdateKeyframePoses({{9999, 1000, Pose2D{}}, {3, 5, Pose2D{}}}), 0u);
+  EXPECT_FALSE(loc.poses_optimised());
+  EXPECT_THROW(loc.UpdateKeyframePoses({{3, 1003, Pose2D{std::nan(""), 0, 0}}}),
+               std::invalid_argument);
+  // The backend's poses, in two messages (a later one replaces an earlier one's pose).
+  std::vector<KeyframePose> first(truth.begin(), truth.begin() + 10),
+      rest(truth.begin() + 5, truth.end());
+  for (KeyframePose& k : first) k.map_from_camera.x += 0.5;  // replaced by `rest` or stays off
+  EXPECT_EQ(loc.UpdateKeyframePoses(first), first.size());
+  EXPECT_EQ(loc.UpdateKeyframePoses(rest), rest.size());
+  EXPECT_EQ(loc.UpdateKeyframePoses({truth.begin(), truth.begin() + 5}), 5u);
+  EXPECT_TRUE(loc.poses_optimised());
+  ASSERT_TRUE(loc.KeyframeInfo(4)->has_pose);  // the keyframe added without one has it now
+  for (const Keyframe& k : loc.Keyframes()) {
+    ASSERT_TRUE(k.has_pose);
+    EXPECT_EQ(Describe(k.map_from_camera), Describe(s.db_poses[k.id])) << k.id;
+  }
+  EXPECT_EQ(fixes_ok(loc), revisits);
+  const auto candidates = loc.Query(loc.Process(s.revisits[0]), 3, false);
+  ASSERT_FALSE(candidates.empty());
+  EXPECT_EQ(Describe(candidates[0].map_from_camera), Describe(s.db_poses[candidates[0].id]));
+
+  // Saved with them, its frame and the flag; loaded as saved.
+  loc.Save(dir() / "optimised.gtmap");
+  const MapFileInfo info = Localizer::ReadMapInfo(dir() / "optimised.gtmap");
+  EXPECT_EQ(info.version, 3u);
+  EXPECT_EQ(info.pose_frame, "map");
+  EXPECT_TRUE(info.poses_optimised);
+  Localizer fresh(s.vocabulary, "test.gtvoc", Options());
+  fresh.Load(dir() / "optimised.gtmap");
+  EXPECT_EQ(fresh.pose_frame(), "map");
+  EXPECT_TRUE(fresh.poses_optimised());
+  for (const Keyframe& k : fresh.Keyframes()) {
+    EXPECT_EQ(Describe(k.map_from_camera), Describe(s.db_poses[k.id])) << k.id;
+  }
+  EXPECT_EQ(fixes_ok(fresh), revisits);
+  // The saving map reads the file it wrote now: the poses stay, and a later update still counts.
+  EXPECT_EQ(fixes_ok(loc), revisits);
+  EXPECT_EQ(loc.UpdateKeyframePoses({{2, 1002, drift}}), 1u);
+  EXPECT_EQ(Describe(loc.KeyframeInfo(2)->map_from_camera), Describe(drift));
+  loc.Reset();
+  EXPECT_FALSE(loc.poses_optimised());
+  EXPECT_EQ(loc.pose_frame(), "map");
+
+  // A map of format version 2 (no pose frame, no flag) still loads: the same file with the
+  // header of version 2 (the frame's empty string and the flag taken out, sections moved up).
+  {
+    Localizer plain(s.vocabulary, "test.gtvoc", Options());
+    plain.Load(dir() / "odometry.gtmap");
+    plain.SetPoseFrame("");
+    plain.Save(dir() / "plain.gtmap");
+  }
+  std::string f = ReadFile(dir() / "plain.gtmap");
+  uint64_t hs;
+  std::memcpy(&hs, f.data() + 16, 8);
+  std::string header = f.substr(64, hs);
+  const size_t kSectionTable = 5 * 16, kFrameAndFlag = 8 + 1;
+  header.erase(header.size() - kSectionTable - kFrameAndFlag, kFrameAndFlag);
+  uint64_t old_first, new_first = (64 + header.size() + 63) / 64 * 64;
+  std::memcpy(&old_first, header.data() + header.size() - kSectionTable, 8);
+  const uint64_t shift = old_first - new_first;
+  for (int k = 0; k < 5; ++k) {
+    uint64_t off;
+    std::memcpy(&off, header.data() + header.size() - kSectionTable + 16 * k, 8);
+    off -= shift;
+    std::memcpy(header.data() + header.size() - kSectionTable + 16 * k, &off, 8);
+  }
+  std::string v2 = f.substr(0, 64) + header;
+  v2.resize(new_first, '\0');
+  v2 += f.substr(old_first);
+  const uint32_t version = 2;
+  const uint64_t fixed[3] = {header.size(), Checksum64(header.data(), header.size()), v2.size()};
+  std::memcpy(v2.data() + 8, &version, 4);
+  std::memcpy(v2.data() + 16, fixed, sizeof(fixed));
+  WriteFileAtomic(dir() / "v2.gtmap", v2);
+  const MapFileInfo old_info = Localizer::ReadMapInfo(dir() / "v2.gtmap");
+  EXPECT_EQ(old_info.version, 2u);
+  EXPECT_EQ(old_info.pose_frame, "");
+  EXPECT_FALSE(old_info.poses_optimised);
+  Localizer old(s.vocabulary, "test.gtvoc", Options());
+  ASSERT_EQ(old.Load(dir() / "v2.gtmap"), s.db_images.size());
+  EXPECT_EQ(Describe(old.KeyframeInfo(3)->map_from_camera),
+            Describe(Compose(drift, s.db_poses[3])));
+  EXPECT_EQ(fixes_ok(old), 0);
 }
 
 // Without descriptors a map is smaller by their size, verification uses word pairs, re-query

@@ -160,6 +160,39 @@ TEST(Mapper, MapsADriveAndClosesLoopsOnTheRevisits) {
   EXPECT_GE(right * 100, closures * 95);
 }
 
+// Beside a SLAM backend the node maps in the backend's frame, which jumps when a correction
+// arrives, while odometry is smooth: the keyframe policy measures the motion it is given
+// (`motion`, odometry) and the keyframe is stored at `pose` (the map frame). The keyframes chosen
+// are those of the odometry alone; the same jumpy poses as the policy's input choose others.
+TEST(Mapper, TheKeyframePolicyMeasuresOdometryAndTheKeyframeKeepsItsMapPose) {
+  const Drive& d = TheDrive();
+  auto with_motion = NewLocalizer(), odometry_only = NewLocalizer(), jumpy_only = NewLocalizer();
+  MapperOptions o;
+  o.keyframe_min_distance = 0.05;
+  Mapper a(with_motion.get(), o), b(odometry_only.get(), o), c(jumpy_only.get(), o);
+  // A correction that changes every 7th image by up to 3 cm (a backend closing loops).
+  auto map_pose = [&](size_t i) {
+    const double k = static_cast<double>(i / 7);
+    return Compose(Pose2D{0.03 * std::sin(k), 0.03 * std::cos(2 * k), 0.01 * std::sin(3 * k)},
+                   d.truth[i]);
+  };
+  size_t differ = 0;
+  for (size_t i = 0; i < 60; ++i) {
+    const MapperStep sa = a.Process(d.images[i], Stamp(i), map_pose(i), true, d.truth[i]);
+    const MapperStep sb = b.Process(d.images[i], Stamp(i), d.truth[i]);
+    const MapperStep sc = c.Process(d.images[i], Stamp(i), map_pose(i));
+    EXPECT_EQ(sa.keyframe, sb.keyframe) << "image " << i;
+    differ += sa.keyframe.has_value() != sc.keyframe.has_value() ? 1 : 0;
+    if (sa.keyframe) {
+      const auto k = with_motion->KeyframeInfo(*sa.keyframe);
+      ASSERT_TRUE(k && k->has_pose);
+      EXPECT_EQ(k->map_from_camera.x, map_pose(i).x);
+      EXPECT_EQ(k->map_from_camera.theta, map_pose(i).theta);
+    }
+  }
+  EXPECT_GT(differ, 0u) << "the negative control: jumpy poses should choose other keyframes";
+}
+
 // Without poses, every keyframe_every_n-th image; temporal consistency holds each closure until
 // N images in a row agree, and a held closure is reported as held, not published.
 TEST(Mapper, WithoutPosesEveryNthImageAndTemporalConsistencyHoldsClosures) {

@@ -16,6 +16,7 @@
 #include <cstdint>
 #include <filesystem>
 #include <memory>
+#include <mutex>
 #include <optional>
 #include <shared_mutex>
 #include <string>
@@ -51,6 +52,7 @@ struct LocalizerOptions {
 
 namespace detail {
 class KeyframeStore;
+struct KeyframeRecord;
 struct KeyframeView;
 }  // namespace detail
 
@@ -86,14 +88,29 @@ struct SaveStats {
 
 // What a map file's header says (Localizer::ReadMapInfo), for either format version.
 struct MapFileInfo {
-  uint32_t version = 0;  // 1: before issue 17 (loaded whole, to convert); 2: memory-mapped
+  uint32_t version = 0;  // 1: loaded whole, to convert; 2 and 3: memory-mapped (3 adds the
+                         // frame of the poses and whether they were optimised)
   std::string vocabulary_path;
   uint64_t vocabulary_fingerprint = 0;
   std::string retrieval_config;  // FormatRetrievalConfig's text of the map's preset
   double meters_per_pixel = 0;
   uint64_t keyframes = 0;
   bool descriptors = false;  // the map keeps keyframe descriptors
+  // The frame the keyframe poses are in ("" when the map does not say: version 1 and 2), and
+  // whether a SLAM backend's optimisation placed them (Localizer::UpdateKeyframePoses) rather
+  // than the poses the keyframes were added with (odometry or TF).
+  std::string pose_frame;
+  bool poses_optimised = false;
   uint64_t file_bytes = 0;
+};
+
+// A keyframe's new pose from a SLAM backend (Localizer::UpdateKeyframePoses): the keyframe is
+// named by its id and its stamp, so that an update made for another map (one reset or loaded
+// since) changes nothing.
+struct KeyframePose {
+  uint32_t id = 0;
+  int64_t stamp_ns = 0;
+  Pose2D map_from_camera;
 };
 
 // An image ready to insert or query: its features and BoW vector.
@@ -195,6 +212,19 @@ class Localizer {
 
   void Reset();  // forgets every keyframe
 
+  // The poses a SLAM backend's optimisation gives the keyframes, in the map's pose frame: each
+  // keyframe named by id and stamp gets its new pose (an entry whose id is unknown or whose stamp
+  // differs is skipped). Later updates replace earlier ones; Save writes the poses as updated and
+  // records that the map's poses were optimised. Returns the number of keyframes updated.
+  // Throws std::invalid_argument, changing nothing, for a non-finite pose.
+  size_t UpdateKeyframePoses(const std::vector<KeyframePose>& poses);
+  // The frame the keyframe poses are in, recorded in saved maps (the node's ~map_frame; a loaded
+  // map's own). Set before the first keyframe, or it names the frame of poses made elsewhere.
+  void SetPoseFrame(const std::string& frame);
+  std::string pose_frame() const;
+  // Whether UpdateKeyframePoses updated any keyframe of this map (or the loaded map says so).
+  bool poses_optimised() const;
+
   // The ground sampling distance images are verified with and maps are saved with: the
   // options' until SetMetersPerPixel or Load(..., adopt_scale) changes it.
   double meters_per_pixel() const { return meters_per_pixel_.load(); }
@@ -227,6 +257,9 @@ class Localizer {
   // A keyframe's view, or why it cannot be verified (a payload that fails its checksum); under
   // mutex_.
   detail::KeyframeView View(uint32_t id) const;
+  // A keyframe's pose: the one UpdateKeyframePoses gave it, else its record's (none when it was
+  // added without one); under mutex_.
+  std::optional<Pose2D> PoseOf(uint32_t id, const detail::KeyframeRecord& record) const;
   std::string Damaged(uint32_t id) const;
   std::unique_ptr<BowDatabase> NewDatabase() const;
   std::unique_ptr<detail::KeyframeStore> NewStore() const;
@@ -245,7 +278,13 @@ class Localizer {
   mutable std::shared_mutex mutex_;        // guards database_, keyframes_ and generation_
   std::shared_ptr<BowDatabase> database_;  // guarded by mutex_ (a save keeps its own reference)
   std::unique_ptr<detail::KeyframeStore> keyframes_;  // by id; guarded by mutex_
-  std::atomic<double> meters_per_pixel_;              // set with mutex_ held; read anywhere
+  // The poses UpdateKeyframePoses gave, by id (x NaN: none), replaced as a whole (a save takes
+  // the current one under the lock in O(1)); guarded by mutex_, as are the two below.
+  std::shared_ptr<const std::vector<Pose2D>> moved_;
+  std::string pose_frame_;
+  bool poses_optimised_ = false;
+  std::mutex update_mutex_;               // one UpdateKeyframePoses at a time
+  std::atomic<double> meters_per_pixel_;  // set with mutex_ held; read anywhere
   uint64_t generation_ = 0;  // bumped by Load, ImportVersion1 and Reset; guarded by mutex_
 };
 

@@ -52,9 +52,14 @@ class Mapper {
 
   // One image. insert: mapping mode (keyframes are added, the newest exclude_recent keyframes
   // are not candidates); false: external mode (a backend inserts keyframes itself: nothing is
-  // added or excluded). `pose` is the image's pose in the map frame (odometry or TF), if known.
+  // added or excluded). `pose` is the image's pose in the map frame (odometry or TF), if known;
+  // the keyframe is stored with it. `motion`, when given, is what the keyframe policy measures
+  // the motion since the last keyframe with instead: odometry, smooth, where `pose` is in a map
+  // frame that a SLAM backend's corrections move (the node maps in the backend's frame), so
+  // that the keyframes chosen do not depend on when the corrections arrived.
   MapperStep Process(const ProcessedImage& image, int64_t stamp_ns,
-                     const std::optional<Pose2D>& pose, bool insert = true);
+                     const std::optional<Pose2D>& pose, bool insert = true,
+                     const std::optional<Pose2D>& motion = std::nullopt);
 
   // Forgets the keyframe policy's state and the temporal run: after the map is loaded, reset
   // or replaced. Safe from any thread (it waits for a Process in progress).

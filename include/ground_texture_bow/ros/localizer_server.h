@@ -38,6 +38,7 @@
 
 #include "ground_texture_bow/AddKeyframe.h"
 #include "ground_texture_bow/GetInfo.h"
+#include "ground_texture_bow/KeyframePoses.h"
 #include "ground_texture_bow/LoadMap.h"
 #include "ground_texture_bow/Localize.h"
 #include "ground_texture_bow/QueryCandidates.h"
@@ -80,6 +81,16 @@ class LocalizerServer {
 
   void ImageCallback(const sensor_msgs::ImageConstPtr& msg);
   void CameraInfoCallback(const sensor_msgs::CameraInfoConstPtr& msg);
+  // A SLAM backend's optimised keyframe poses (keyframe_poses): applied when they are in
+  // ~map_frame, else counted and reported.
+  void KeyframePosesCallback(const ground_texture_bow::KeyframePosesConstPtr& msg);
+  // Throws std::runtime_error unless the map file at `path` records no pose frame or ~map_frame
+  // (its poses would be published in the wrong frame).
+  void CheckMapFrame(const std::string& path) const;
+  // The camera's footprint in map_frame beside a SLAM backend: the latest map -> odom composed
+  // with `odom` (the camera in odom_frame at the image's time); none while the backend has not
+  // published map -> odom.
+  std::optional<gtbow::Pose2D> BackendPose(const gtbow::Pose2D& odom);
   // amcl's initialpose: the base's pose in map_frame sets the odometry gate's map -> odom.
   void InitialPoseCallback(const geometry_msgs::PoseWithCovarianceStampedConstPtr& msg);
   // Makes sure the scale of an image from `frame`, whose camera_info is `info` (may be null), is
@@ -156,8 +167,9 @@ class LocalizerServer {
   image_transport::Subscriber image_sub_;
   ros::Subscriber compressed_sub_;  // transport: compressed (Debian has no compressed plugin)
   image_transport::Publisher debug_pub_;
-  ros::Publisher pose_pub_, camera_pose_pub_, loop_pub_, candidates_pub_, markers_pub_;
-  ros::Subscriber info_sub_, initialpose_sub_;
+  ros::Publisher pose_pub_, camera_pose_pub_, loop_pub_, candidates_pub_, markers_pub_,
+      keyframes_pub_;
+  ros::Subscriber info_sub_, initialpose_sub_, keyframe_poses_sub_;
   std::string info_topic_;
   ros::Timer tf_timer_;
   ros::WallTimer autosave_timer_;
@@ -180,7 +192,9 @@ class LocalizerServer {
   std::atomic<Mode> mode_;
   std::atomic<uint64_t> received_{0}, processed_{0}, dropped_{0}, rejected_{0}, debug_images_{0},
       rejected_requests_{0}, missing_tf_{0}, fixes_{0}, loop_closures_{0}, failed_fixes_{0},
-      held_closures_{0}, held_fixes_{0}, relocalizations_{0}, unusable_tf_{0};
+      held_closures_{0}, held_fixes_{0}, relocalizations_{0}, unusable_tf_{0},
+      keyframes_reposed_{0}, pose_updates_refused_{0},
+      keyframe_poses_stamp_ns_{0};           // header stamp of the newest keyframe_poses applied
   std::atomic<bool> scale_known_{false};     // explicit, from the map, or from camera_info
   std::atomic<bool> scale_from_map_{false};  // a loaded map's: the camera is checked against it
   std::atomic<double> last_processing_ms_{0.0};

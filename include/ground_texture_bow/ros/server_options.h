@@ -29,9 +29,14 @@ struct ServerOptions {
   Mode mode = Mode::kMapping;
   std::string map_frame = "map";
   std::string odom_frame = "odom";
-  std::string camera_frame;          // overrides the image header's frame_id when set
-  std::string transport = "raw";     // raw (image_transport) or compressed (<image>/compressed)
-  bool use_tf = true;                // look up the camera pose in map_frame
+  std::string camera_frame;       // overrides the image header's frame_id when set
+  std::string transport = "raw";  // raw (image_transport) or compressed (<image>/compressed)
+  bool use_tf = true;             // look up the camera pose in map_frame
+  // Mapping beside a SLAM backend (pose_graph_backend) that publishes map -> odom and answers
+  // ~keyframes with keyframe_poses: each keyframe is placed in map_frame through the latest
+  // map -> odom and the odometry at the image's time (the keyframe policy measures motion in
+  // odometry), then re-posed as the backend's optimised poses arrive.
+  bool slam_backend = false;
   double tf_timeout = 0.05;          // seconds to wait for a transform
   bool publish_tf = false;           // publish map -> odom from fixes
   double localized_timeout = 2.0;    // seconds a fix counts as "localized" in diagnostics

@@ -31,6 +31,7 @@ namespace {
 constexpr uint64_t kDatabaseVisit = 1;
 constexpr uint64_t kTrainVisit = 2;
 constexpr uint64_t kDriveVisit = 3;
+constexpr uint64_t kLaterDriveVisit = 50;  // + k for the k-th later drive
 constexpr uint64_t kFirstQueryVisit = 100;
 
 // FNV-1a: a stable string hash (std::hash may differ between standard libraries).
@@ -128,6 +129,14 @@ void SynthOptions::Check() const {
   need(std::isfinite(drive_spacing) && drive_spacing >= 1e-4,
        "drive_spacing must be >= 0.0001 metres");
   need(drive_length / drive_spacing <= 5e6, "the drive would exceed 5 million images");
+  need(later_drive_days.empty() || drive_length > 0, "later drives need a drive (--drive)");
+  need(later_drive_days.size() <= 20, "at most 20 later drives");
+  for (double d : later_drive_days) {
+    need(std::isfinite(d) && d > 0 && d <= 3650, "later drive days must be in (0, 3650]");
+  }
+  need(std::isfinite(later_drive_length) && later_drive_length >= 0 &&
+           later_drive_length / drive_spacing <= 5e6,
+       "later_drive_length must be >= 0 and at most 5 million images");
   need(drive_length == 0 || photos.empty(), "a drive needs a synthetic floor, not --photo");
   need(photo_meters_per_pixel >= 0 && std::isfinite(photo_meters_per_pixel),
        "photo_meters_per_pixel must be >= 0 (0: the camera's meters_per_pixel)");
@@ -164,6 +173,7 @@ namespace {
 void KeepOnly(const SynthOptions& o, DatasetPlan* plan) {
   if (o.only.empty()) return;
   auto kind = [](const std::string& split) {
+    if (split.rfind("drive_day", 0) == 0) return std::string("drive");
     return split.rfind("query_", 0) == 0 ? std::string("queries") : split;
   };
   auto wanted = [&](const std::string& split) {
@@ -174,7 +184,10 @@ void KeepOnly(const SynthOptions& o, DatasetPlan* plan) {
     if (wanted(im.split)) kept.push_back(std::move(im));
   }
   plan->images.swap(kept);
-  if (!wanted("drive")) plan->drive_odometry.clear();
+  if (!wanted("drive")) {
+    plan->drive_odometry.clear();
+    plan->later_drive_odometry.clear();
+  }
   for (auto it = plan->splits.begin(); it != plan->splits.end();) {
     it = wanted(it->first) ? std::next(it) : plan->splits.erase(it);
   }
@@ -406,7 +419,7 @@ struct RoundedRect {
 }  // namespace
 
 std::vector<Pose2D> DrivePath(double width, double height, const ImageGeometry& g, double length,
-                              double spacing) {
+                              double spacing, double start_laps) {
   const double fw = g.width * g.meters_per_pixel, fh = g.height * g.meters_per_pixel;
   const double inset = 0.5 * std::hypot(fw, fh);
   RoundedRect rect{inset, inset, width - inset, height - inset, 0.0};
@@ -438,8 +451,9 @@ std::vector<Pose2D> DrivePath(double width, double height, const ImageGeometry& 
   std::vector<Pose2D> poses;
   const size_t n = static_cast<size_t>(std::floor(length / spacing + 1e-9)) + 1;
   poses.reserve(n);
-  Vec2 prev = point(0.0);
-  double travelled = 0.0, next = 0.0, u = 0.0;
+  double u = start_laps * perimeter;
+  Vec2 prev = point(u);
+  double travelled = 0.0, next = 0.0;
   while (poses.size() < n) {
     const Vec2 cur = point(u + du);
     const double step = std::hypot(cur.x - prev.x, cur.y - prev.y);
@@ -598,6 +612,37 @@ DatasetPlan PlanDataset(const SynthOptions& o) {
       plan.images.push_back(im);
       plan.drive_odometry.push_back({im.name, odom[i]});
     }
+    // Later sessions: the same laps on later days, starting elsewhere, odometry from the origin.
+    for (size_t k = 0; k < o.later_drive_days.size(); ++k) {
+      const double day = o.later_drive_days[k];
+      char split[32];
+      std::snprintf(split, sizeof(split), "drive_day%03d", static_cast<int>(std::lround(day)));
+      const std::vector<Pose2D> path =
+          DrivePath(o.area_width, o.area_height, o.camera.Geometry(),
+                    o.later_drive_length > 0 ? o.later_drive_length : o.drive_length,
+                    o.drive_spacing, static_cast<double>(k + 1) / 3.0);
+      std::vector<Pose2D> later;
+      later.reserve(path.size());
+      for (const Pose2D& p : path) later.push_back(Rounded(p));
+      const std::vector<Pose2D> wheel =
+          SimulateOdometry(later, o.odometry, HashCombine(o.seed, kLaterDriveVisit + k));
+      const Pose2D boot = Inverse(wheel.front());
+      std::vector<std::string>& later_names = plan.splits[split];
+      std::vector<PoseRecord>& later_odom = plan.later_drive_odometry[split];
+      for (size_t i = 0; i < later.size(); ++i) {
+        PlannedImage im;
+        im.split = split;
+        im.name = ImageName(split, i);
+        im.pose = later[i];
+        im.day = day;
+        im.visit = kLaterDriveVisit + k;
+        later_names.push_back(im.name);
+        plan.images.push_back(im);
+        Pose2D odom = i == 0 ? Pose2D{0, 0, 0} : Compose(boot, wheel[i]);  // exactly the origin
+        odom.theta = WrapAngle(odom.theta);
+        later_odom.push_back({im.name, odom});
+      }
+    }
   }
   KeepOnly(o, &plan);
   return plan;
@@ -684,6 +729,9 @@ SynthSummary GenerateDataset(const SynthOptions& o, const fs::path& out, bool fo
       // The columns of poses.csv: the odometry pose of each drive image (OdometryNoise).
       WriteFileAtomic(staging / "drive_odometry.csv", FormatPosesCsv(plan.drive_odometry));
     }
+    for (const auto& [split, odom] : plan.later_drive_odometry) {
+      WriteFileAtomic(staging / (split + "_odometry.csv"), FormatPosesCsv(odom));
+    }
     // Provenance: how this dataset was made (an extra file the format allows).
     std::ostringstream prov;
     prov << "# gtbow synth parameters\nsurface: "
@@ -704,6 +752,12 @@ SynthSummary GenerateDataset(const SynthOptions& o, const fs::path& out, bool fo
            << "\nodometry_turn_bias: " << o.odometry.turn_bias
            << "\nodometry_heading_bias: " << o.odometry.heading_bias
            << "\nodometry_heading_noise: " << o.odometry.heading_noise << "\n";
+      if (!o.later_drive_days.empty()) {
+        prov << "later_drive_days: [";
+        for (size_t k = 0; k < o.later_drive_days.size(); ++k)
+          prov << (k ? ", " : "") << o.later_drive_days[k];
+        prov << "]\nlater_drive_length: " << o.later_drive_length << "\n";
+      }
     }
     if (!regions.empty()) {
       // Each photograph: file name, checksum of its bytes, scale and where it lies on the floor.

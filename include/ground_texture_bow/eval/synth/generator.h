@@ -62,7 +62,14 @@ struct SynthOptions {
   double drive_length = 0.0;    // metres of path
   double drive_spacing = 0.01;  // metres between consecutive drive images (> 0)
   OdometryNoise odometry;       // noise model of drive_odometry.csv
-  int threads = 0;              // worker threads, 0 = all cores
+  // Later sessions over the same floor (needs a drive): for each day D here (> 0) a split
+  // drive_dayDDD of later_drive_length metres (0: drive_length) on the floor aged to day D, in
+  // its own lighting, starting (k + 1) thirds of a lap further along the laps than the first
+  // drive (k: its place in this list), and its wheel odometry in drive_dayDDD_odometry.csv,
+  // which starts at the origin (a robot's odometry after it boots, not the map's frame).
+  std::vector<double> later_drive_days;
+  double later_drive_length = 0.0;
+  int threads = 0;  // worker threads, 0 = all cores
   // Render only these kinds of split ("train", "database", "queries", "drive"); empty = all. Poses
   // are those of the full dataset, so partial datasets of one seed fit together.
   std::vector<std::string> only;
@@ -100,13 +107,16 @@ struct DatasetPlan {
   // The drive's odometry, one pose per image of split "drive" in its order (empty without a
   // drive).
   std::vector<PoseRecord> drive_odometry;
+  // The later drives' odometry, by split (drive_dayDDD), each written as <split>_odometry.csv.
+  std::map<std::string, std::vector<PoseRecord>> later_drive_odometry;
 };
 
 // The true poses of the drive: `length` metres of laps around a rounded rectangle inset half a
 // footprint diagonal into the area [0, width] x [0, height], one pose every `spacing` metres
-// along the path, heading along the path (counter-clockwise).
+// along the path, heading along the path (counter-clockwise), starting `start_laps` laps along
+// it (a fraction starts part-way round).
 std::vector<Pose2D> DrivePath(double width, double height, const ImageGeometry& geometry,
-                              double length, double spacing);
+                              double length, double spacing, double start_laps = 0.0);
 
 // Odometry integrated from consecutive true poses under `noise` (OdometryNoise), seeded.
 std::vector<Pose2D> SimulateOdometry(const std::vector<Pose2D>& truth, const OdometryNoise& noise,
