@@ -18,7 +18,10 @@
 #   6. the saved map's keyframe poses against the ground truth (scripts/map_pose_error.py)
 #   7. a fresh localizer in localization mode loads that map and localizes the later day's
 #      drive: its camera fixes against the ground truth (scripts/fix_accuracy.py)
-#   8. gtbow slam on the same drive must find exactly the node's loop closures
+#   8. a second mapping session: the localizer and the backend continue the saved map on the
+#      later day's drive (no initial pose): the first matches to the map place the session in
+#      it, its keyframes extend the map (map_session2.gtmap)
+#   9. gtbow slam on the same drive must find exactly the node's loop closures
 # Usage: backend_demo.sh WORKSPACE OUT_DIR    (DRIVE_METRES, default 30; LATER_METRES, the later
 #        drive, default 10; RATE Hz, default 20; TEMPORAL, the localizer's
 #        ~temporal_consistency N, default 1; PRESETS, default "high_accuracy fast"; REUSE=1
@@ -36,6 +39,9 @@ readonly ATE_MAX_MM=1.0 ODOMETRY_FACTOR=10
 # least LATER_MIN_RATE of the images within 4.8 mm and 1.5 degrees, the fixes' RMSE at most
 # LATER_RMSE_MM.
 readonly MAP_RMSE_MM=1.0 MAP_MAX_MM=3.0 LATER_MIN_RATE=0.95 LATER_RMSE_MM=2.0
+# A second mapping session on the saved map, starting elsewhere with odometry from the origin:
+# placed in the map within ANCHOR_MAX_IMAGES images, its keyframes within SESSION_RMSE_MM RMSE.
+readonly ANCHOR_MAX_IMAGES=10 SESSION_RMSE_MM=1.0
 export PATH="/usr/bin:$PATH"
 ws="$(cd "$1" && pwd)"
 out="$2"
@@ -61,8 +67,9 @@ if [ "${REUSE:-0}" = 1 ] && [ -f "$out/drive.bag" ] && [ -f "$out/later.bag" ] &
   echo "== backend 1-3. reusing $out/floor, floor.gtvoc, drive.bag and later.bag (REUSE=1)"
 else
 echo "== backend 1. floor with a ${drive_m} m drive, and a ${later_m} m drive 30 days later"
-"$gtbow" synth --out "$out/floor" --area 1.2 0.8 --train 100 --queries 0 --drive "$drive_m" \
-  --drive-spacing 0.02 --later-drives 30 --later-drive-length "$later_m" --only train,drive \
+# (the database and two query days too, for make demo's offline evaluation of the same floor)
+"$gtbow" synth --out "$out/floor" --area 1.2 0.8 --train 100 --queries 20 --days 0,180 \
+  --drive "$drive_m" --drive-spacing 0.02 --later-drives 30 --later-drive-length "$later_m" \
   --force -q | sed 's/^/   /'
 echo "== backend 2. vocabulary"
 "$gtbow" train-vocab --dataset "$out/floor" --words 3000 --out "$out/floor.gtvoc" -q > /dev/null
@@ -191,12 +198,50 @@ wait $scorer || later_ok=0
 sed 's/^/   /' "$out/later_fixes$sfx.txt"
 kill -INT $later_pid
 wait $later_pid 2>/dev/null || true
+
+echo "== backend 8. a second session 30 days later: mapping on the saved map, no initial pose"
+log="$out/session2_$first_preset$sfx.log"
+roslaunch ground_texture_bow backend.launch vocabulary:="$out/floor.gtvoc" \
+  preset:="$ws/src/ground_texture_bow/config/$first_preset.yaml" \
+  map:="$out/map_$first_preset$sfx.gtmap" temporal_consistency:="$temporal" > "$log" 2>&1 &
+session_pid=$!
+pids+=($session_pid)
+ok=0
+for _ in $(seq 100); do
+  services="$(rosservice list 2>/dev/null || true)"
+  if grep -qx /backend/save_trajectory <<< "$services" &&
+     grep -qx /localizer/get_info <<< "$services"; then ok=1; break; fi
+  sleep 0.3
+done
+[ $ok = 1 ] || { echo "the localizer or the backend did not start: see $log"; exit 1; }
+first_new=$(rosservice call /localizer/get_info | sed -n 's/^database_size: //p')
+rosbag play --quiet -d 2 "$out/later.bag" > "$out/play_session2$sfx.log" 2>&1
+sleep 2
+session_ok=1
+/usr/bin/python3 "$here/save_optimised_map.py" "$out/map_session2_$first_preset$sfx.gtmap" \
+  > "$out/session2_save$sfx.txt" 2>&1 || session_ok=0
+sed 's/^/   /' "$out/session2_save$sfx.txt"
+kill -INT $session_pid
+wait $session_pid 2>/dev/null || true
+if [ $session_ok = 1 ]; then
+  anchored_at=$(sed -n 's/^anchored_at: //p' "$out/session2_save$sfx.txt")
+  images=$(/usr/bin/python3 -c "print(round(($anchored_at - 5000) * $rate) + 1)")
+  echo "   placed in the earlier map at the session's image $images (bound: $ANCHOR_MAX_IMAGES)"
+  [ "$images" -le "$ANCHOR_MAX_IMAGES" ] || session_ok=0
+  "$gtbow" map-info "$out/map_session2_$first_preset$sfx.gtmap" \
+    --poses "$out/map_session2_${first_preset}${sfx}_poses.csv" | grep -E "keyframes|pose frame" |
+    sed 's/^/   /'
+  /usr/bin/python3 "$here/map_pose_error.py" "$out/map_session2_${first_preset}${sfx}_poses.csv" \
+    "$out/floor" --split drive_day030 --start 5000 --rate "$rate" --first-id "$first_new" \
+    --label "the second session's keyframes (from id $first_new)" \
+    --max-rmse-mm "$SESSION_RMSE_MM" | sed 's/^/   /' || session_ok=0
+fi
 echo "   ($(( $(date +%s) - t_start )) s; logs, bags, maps and trajectories in $out)"
 # What is measured is what ships: gtbow slam runs the node's mapping pipeline (gtbow::Mapper)
 # offline; on this drive it must find exactly the closures that the node published on the
 # replay, with the same relative poses.
 same_ok=1
-echo "== backend 8. gtbow slam on the same drive against the node's $first_preset closures"
+echo "== backend 9. gtbow slam on the same drive against the node's $first_preset closures"
 "$gtbow" slam --dataset "$out/floor" --vocab "$out/floor.gtvoc" \
   --preset "$ws/src/ground_texture_bow/config/$first_preset.yaml" --rate "$rate" \
   --temporal-consistency "$temporal" --out "$out/slam_$first_preset$sfx" --no-plots -q |
@@ -216,6 +261,11 @@ fi
 if [ $later_ok != 1 ]; then
   echo "backend demo FAILED: the later day's drive was not localized on the saved map in" \
     "$LATER_MIN_RATE of its images with an RMSE at most $LATER_RMSE_MM mm (figures above)" >&2
+  exit 1
+fi
+if [ $session_ok != 1 ]; then
+  echo "backend demo FAILED: the second session was not placed in the earlier map within" \
+    "$ANCHOR_MAX_IMAGES images, or its keyframes are not within $SESSION_RMSE_MM mm RMSE" >&2
   exit 1
 fi
 if [ $ate_ok != 1 ]; then

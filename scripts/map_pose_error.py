@@ -14,7 +14,8 @@ fails (after printing the figures); exit 2 on bad input (a stamp that is no driv
 keyframe without a pose, no keyframes).
 
 Usage: map_pose_error.py MAP_POSES_CSV DATASET [--split drive] [--start 1000] [--rate 20]
-                         [--label TEXT] [--max-rmse-mm 1.0] [--max-mm 3.0] [--json OUT]
+                         [--first-id N] [--label TEXT] [--max-rmse-mm 1.0] [--max-mm 3.0]
+                         [--json OUT]
 """
 import argparse
 import csv
@@ -37,6 +38,8 @@ def main():
     ap.add_argument("--start", type=float, default=1000.0, help="stamp of the first image, s")
     ap.add_argument("--rate", type=float, default=20.0, help="images per second of the bag")
     ap.add_argument("--label", default="keyframes of the saved map")
+    ap.add_argument("--first-id", type=int, default=0,
+                    help="only the keyframes from this id on (a later session's)")
     ap.add_argument("--max-rmse-mm", type=float, help="claim: position RMSE at most this")
     ap.add_argument("--max-mm", type=float, help="claim: largest position error at most this")
     ap.add_argument("--json", help="also write the figures here")
@@ -57,6 +60,8 @@ def main():
         fail(a.poses + ": no keyframes")
     pos, head = [], []
     for line, r in enumerate(rows, start=2):
+        if int(r["id"]) < a.first_id:
+            continue
         try:
             stamp = float(r["stamp"])
             has_pose = r["has_pose"] == "1"
@@ -72,6 +77,8 @@ def main():
         tx, ty, tth = truth[names[i]]
         pos.append(1000.0 * math.hypot(x - tx, y - ty))
         head.append(abs(math.degrees(math.atan2(math.sin(th - tth), math.cos(th - tth)))))
+    if not pos:
+        fail(a.poses + ": no keyframe from id %d on" % a.first_id)
     rmse = math.sqrt(sum(e * e for e in pos) / len(pos))
     figures = {"keyframes": len(pos), "rmse_mm": rmse, "max_mm": max(pos),
                "heading_rmse_deg": math.sqrt(sum(e * e for e in head) / len(head)),

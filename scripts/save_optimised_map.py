@@ -40,9 +40,15 @@ def main():
             print("save_optimised_map: the backend: " + r.status.message)
             return 1
         stamp = r.keyframe_poses_stamp
-        print("save_optimised_map: backend optimised (%d nodes, %d closures accepted)%s"
-              % (r.nodes, r.closures_accepted,
-                 "" if stamp.is_zero() else "; keyframe poses published"))
+        print("save_optimised_map: backend optimised (%d nodes, %d closures accepted, %d of %d "
+              "fixes)%s" % (r.nodes, r.closures_accepted, r.fixes_accepted, r.fixes_received,
+                            "" if stamp.is_zero() else "; keyframe poses published"))
+        if not r.anchored:
+            print("save_optimised_map: the backend never placed this session in the earlier "
+                  "map (no two agreeing fixes): nothing to save")
+            return 1
+        if not r.anchored_at.is_zero():
+            print("anchored_at: %.9f" % r.anchored_at.to_sec())
         if not stamp.is_zero():
             deadline = time.time() + a.timeout
             while True:

@@ -61,6 +61,26 @@ struct RelativePoseCost {
   Eigen::Matrix3d l;
 };
 
+// A pose against a measurement of it (a fix), whitened by sqrt_info.
+struct PoseCost {
+  PoseCost(const Pose2D& measured, const Eigen::Matrix3d& sqrt_info) : m(measured), l(sqrt_info) {}
+
+  template <typename T>
+  bool operator()(const T* a, T* residual) const {
+    T e[3];
+    e[0] = a[0] - T(m.x);
+    e[1] = a[1] - T(m.y);
+    e[2] = Wrap(T(a[2] - T(m.theta)));
+    for (int i = 0; i < 3; ++i) {
+      residual[i] = T(l(i, 0)) * e[0] + T(l(i, 1)) * e[1] + T(l(i, 2)) * e[2];
+    }
+    return true;
+  }
+
+  Pose2D m;
+  Eigen::Matrix3d l;
+};
+
 // Whitening matrix of a covariance, or false when it is not symmetric positive definite.
 bool SqrtInformation(const Eigen::Matrix3d& cov, Eigen::Matrix3d* out) {
   if (!cov.allFinite() || (cov - cov.transpose()).cwiseAbs().maxCoeff() >
@@ -266,6 +286,96 @@ ClosureState PoseGraph::AddClosure(const Closure& closure) {
   return added.state;
 }
 
+bool PoseGraph::Consistent(const StoredFix& a, const StoredFix& b) const {
+  // Fix a carried by odometry to b's stamp, against fix b, in the map frame.
+  const Sample sa = Interpolate(a.f.stamp_ns), sb = Interpolate(b.f.stamp_ns);
+  const Pose2D rel = Compose(Inverse(sa.odom), sb.odom);
+  const Pose2D predicted = Compose(a.f.map_from_base, rel);
+  const Eigen::Vector3d e(b.f.map_from_base.x - predicted.x, b.f.map_from_base.y - predicted.y,
+                          WrapAngle(b.f.map_from_base.theta - predicted.theta));
+  // The prediction's covariance: fix a's through the lever arm of rel, and the odometry's in
+  // the map frame.
+  const double c = std::cos(a.f.map_from_base.theta), s = std::sin(a.f.map_from_base.theta);
+  const double px = c * rel.x - s * rel.y, py = s * rel.x + c * rel.y;
+  Eigen::Matrix3d j = Eigen::Matrix3d::Identity();
+  j(0, 2) = -py;
+  j(1, 2) = px;
+  Eigen::Matrix3d r = Eigen::Matrix3d::Identity();
+  r(0, 0) = c;
+  r(0, 1) = -s;
+  r(1, 0) = s;
+  r(1, 1) = c;
+  const Eigen::Matrix3d cov =
+      j * ToMatrix(a.f.covariance) * j.transpose() + ToMatrix(b.f.covariance) +
+      r * ToMatrix(OdometryCovariance(std::abs(sb.dist - sa.dist), std::abs(rel.theta))) *
+          r.transpose();
+  const double chi2 = e.dot(cov.ldlt().solve(e));
+  return std::isfinite(chi2) && chi2 <= options_.consistency_chi2;
+}
+
+void PoseGraph::Accept(StoredFix* s) {
+  if (s->state == ClosureState::kPending) --fixes_pending_;
+  s->state = ClosureState::kAccepted;
+  ++fixes_accepted_;
+  Node& n = NodeAt(s->f.stamp_ns);
+  if (!anchored()) {
+    // The first accepted fix places the map frame: every estimate so far (odometry, in the
+    // odometry frame) is moved by the correction this fix implies at its node.
+    const Pose2D map_from_frame =
+        Compose(s->f.map_from_base, Inverse(Pose2D{n.est[0], n.est[1], n.est[2]}));
+    for (auto& [t, node] : nodes_) {
+      const Pose2D moved = Compose(map_from_frame, {node.est[0], node.est[1], node.est[2]});
+      node.est[0] = moved.x;
+      node.est[1] = moved.y;
+      node.est[2] = WrapAngle(moved.theta);
+    }
+    anchored_at_ns_ = s->f.stamp_ns;
+  }
+  dirty_ = true;
+}
+
+ClosureState PoseGraph::AddFix(const Fix& fix) {
+  if (!Finite(fix.map_from_base)) throw std::invalid_argument("fix pose has a non-finite value");
+  if (!Covers(fix.stamp_ns)) {
+    throw std::invalid_argument("fix stamp " + std::to_string(fix.stamp_ns * 1e-9) +
+                                " s is outside the odometry received");
+  }
+  StoredFix s{fix, ClosureState::kPending, Interpolate(fix.stamp_ns).dist};
+  s.f.covariance[0] += options_.closure_min_sigma_xy * options_.closure_min_sigma_xy;
+  s.f.covariance[4] += options_.closure_min_sigma_xy * options_.closure_min_sigma_xy;
+  s.f.covariance[8] += options_.closure_min_sigma_theta * options_.closure_min_sigma_theta;
+  Eigen::Matrix3d unused;
+  if (!SqrtInformation(ToMatrix(s.f.covariance), &unused)) {
+    throw std::invalid_argument("fix covariance is not symmetric positive definite");
+  }
+  fixes_.push_back(s);
+  StoredFix& added = fixes_.back();
+  ++fixes_pending_;
+  if (!options_.consistency_check) {
+    Accept(&added);
+    return added.state;
+  }
+  const bool was_anchored = anchored();
+  for (size_t i = 0; i + 1 < fixes_.size(); ++i) {
+    StoredFix& other = fixes_[i];
+    if (std::abs(other.dist - added.dist) > options_.consistency_window) continue;
+    if (!Consistent(other, added)) continue;
+    if (other.state == ClosureState::kPending) Accept(&other);  // the older one anchors
+    if (added.state == ClosureState::kPending) Accept(&added);
+  }
+  // Placed when this fix confirmed an earlier one: the moment a robot knows where it is.
+  if (!was_anchored && anchored()) anchored_at_ns_ = added.f.stamp_ns;
+  return added.state;
+}
+
+ClosureState PoseGraph::FixState(size_t id) const {
+  if (id >= fixes_.size()) {
+    throw std::out_of_range("no fix " + std::to_string(id) + " (" + std::to_string(fixes_.size()) +
+                            " added)");
+  }
+  return fixes_[id].state;
+}
+
 ClosureState PoseGraph::State(size_t id) const {
   if (id >= closures_.size()) {
     throw std::out_of_range("no closure " + std::to_string(id) + " (" +
@@ -279,6 +389,10 @@ SolveReport PoseGraph::Optimize() {
   report.nodes = nodes_.size();
   if (!dirty_) {
     report.message = "nothing changed";
+    return report;
+  }
+  if (!anchored()) {
+    report.message = "waiting for a fix to place the map frame";
     return report;
   }
   const auto t0 = std::chrono::steady_clock::now();
@@ -311,8 +425,24 @@ SolveReport PoseGraph::Optimize() {
                              loss, nodes_.at(s.c.match_ns).est, nodes_.at(s.c.query_ns).est);
     ++report.closure_edges;
   }
-  problem.SetParameterBlockConstant(nodes_.begin()->second.est);
-  if (nodes_.size() > 1) {
+  // Fix edges (a map made before: its keyframes' poses hold the map frame).
+  for (const StoredFix& s : fixes_) {
+    if (s.state != ClosureState::kAccepted) continue;
+    Eigen::Matrix3d l;
+    SqrtInformation(ToMatrix(s.f.covariance), &l);
+    ceres::LossFunction* loss = nullptr;
+    if (options_.loss == "cauchy") {
+      loss = new ceres::CauchyLoss(options_.loss_scale);
+    } else if (options_.loss == "huber") {
+      loss = new ceres::HuberLoss(options_.loss_scale);
+    }
+    problem.AddResidualBlock(
+        new ceres::AutoDiffCostFunction<PoseCost, 3, 3>(new PoseCost(s.f.map_from_base, l)), loss,
+        nodes_.at(s.f.stamp_ns).est);
+  }
+  // The gauge: the first node (map = odom at the start), or the fixes alone.
+  if (options_.anchor_at_start) problem.SetParameterBlockConstant(nodes_.begin()->second.est);
+  if (nodes_.size() > 1 || !options_.anchor_at_start) {
     ceres::Solver::Options so;
     so.max_num_iterations = options_.max_iterations;
     so.num_threads = 1;  // the localizer needs the cores more

@@ -34,6 +34,7 @@ const MapperOptions& Checked(const MapperOptions& o) {
 Mapper::Mapper(Localizer* localizer, const MapperOptions& options)
     : localizer_(localizer), options_(Checked(options)), temporal_(options.temporal) {
   if (localizer_ == nullptr) throw std::invalid_argument("Mapper: no localizer");
+  session_start_ = static_cast<uint32_t>(localizer_->size());
 }
 
 void Mapper::Reset() {
@@ -41,6 +42,12 @@ void Mapper::Reset() {
   temporal_.Reset();
   last_keyframe_pose_.reset();
   frames_since_keyframe_ = 0;
+  session_start_ = static_cast<uint32_t>(localizer_->size());
+}
+
+uint32_t Mapper::session_start() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return session_start_;
 }
 
 bool Mapper::IsKeyframe(const std::optional<Pose2D>& pose) {
@@ -70,8 +77,10 @@ MapperStep Mapper::Process(const ProcessedImage& image, int64_t stamp_ns,
   const uint32_t n = static_cast<uint32_t>(localizer_->size());
   const uint32_t recent = insert ? static_cast<uint32_t>(options_.exclude_recent) : 0;
   const LocalizationOptions& verification = localizer_->options().retrieval.verification;
+  // The recent past of this session only: an earlier session's keyframes are never "recent".
+  const uint32_t exclude_from = std::max(session_start_, n > recent ? n - recent : 0);
   step.candidates = localizer_->Query(image, static_cast<size_t>(verification.candidates), true,
-                                      n > recent ? n - recent : 0, n);
+                                      std::min(exclude_from, n), n);
   if (insert && IsKeyframe(motion ? motion : pose))
     step.keyframe = localizer_->Add(image, stamp_ns, pose);
 
@@ -104,6 +113,27 @@ MapperStep Mapper::Process(const ProcessedImage& image, int64_t stamp_ns,
   }
   step.publish = temporal_.Next(seen);
   step.run = temporal_.run();
+  if (step.closure >= 0) {
+    const Candidate& c = cands[static_cast<size_t>(step.closure)];
+    if (c.id < session_start_ && c.has_pose) {
+      // The camera in the map: the keyframe's fixed pose and the relative one; the relative
+      // pose's covariance turned from the keyframe's frame into the map's.
+      PoseEstimate fix = c.relative;
+      fix.floor_from_query = Compose(c.map_from_camera, c.relative.floor_from_query);
+      const double co = std::cos(c.map_from_camera.theta), si = std::sin(c.map_from_camera.theta);
+      const double r[3][3] = {{co, -si, 0}, {si, co, 0}, {0, 0, 1}};
+      for (int i = 0; i < 3; ++i) {
+        for (int j = 0; j < 3; ++j) {
+          double v = 0;
+          for (int k = 0; k < 3; ++k) {
+            for (int l = 0; l < 3; ++l) v += r[i][k] * c.relative.covariance[3 * k + l] * r[j][l];
+          }
+          fix.covariance[3 * i + j] = v;
+        }
+      }
+      step.fix = fix;
+    }
+  }
   return step;
 }
 

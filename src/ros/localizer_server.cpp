@@ -421,6 +421,14 @@ std::optional<gtbow::Pose2D> LocalizerServer::LookupFootprint(const std::string&
 }
 
 std::optional<gtbow::Pose2D> LocalizerServer::BackendPose(const gtbow::Pose2D& odom) {
+  if (!tf_buffer_._frameExists(options_.map_frame)) {
+    // A session on an earlier map: the backend places the map frame once the images match it.
+    ROS_INFO_THROTTLE(2.0,
+                      "ground_texture_bow: waiting for the backend's %s -> %s (a session on an "
+                      "earlier map is placed by its first fixes)",
+                      options_.map_frame.c_str(), options_.odom_frame.c_str());
+    return std::nullopt;
+  }
   geometry_msgs::TransformStamped t;
   try {
     t = tf_buffer_.lookupTransform(options_.map_frame, options_.odom_frame, ros::Time(0),
@@ -584,7 +592,17 @@ void LocalizerServer::ProcessImage(const Pending& msg) {
       inliers = c.inliers;
       caption = "keyframe " + std::to_string(c.id) + ", " + std::to_string(c.relative.inliers) +
                 " inliers";
-      if (step.publish) {
+      if (step.publish && step.fix) {
+        // A keyframe of a map made before this session: a fix in the map (~pose), which
+        // anchors this session there (pose_graph_backend's fixes), not a loop closure.
+        gtbow::Localization fix;
+        fix.success = true;
+        fix.image = c.id;
+        fix.score = c.score;
+        fix.estimate = *step.fix;
+        PublishFix(fix, header);
+        caption += " (a fix in the earlier map)";
+      } else if (step.publish) {
         PublishLoopClosure(c, query_id, header);
       } else {
         held_closures_++;

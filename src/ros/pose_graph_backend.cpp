@@ -2,12 +2,14 @@
 // example of how a robot uses ~loop_closures and the test that they are good enough to fix
 // wheel odometry.
 //
-// Inputs: nav_msgs/Odometry on `odom` (the base in the odometry frame) and the localizer's
-// ground_texture_bow/LoopClosure on `loop_closures`. A closure relates two camera poses in the
-// camera's optical frame; the node turns it into a relation between base poses with the
-// camera's mounting (TF base frame -> the closure's header frame, or ~camera_offset), and the
-// pose graph (include/ground_texture_bow/backend/pose_graph.h) does the rest.
-// Outputs: TF map -> odom, ~path (nav_msgs/Path of the graph's nodes), the optimised
+// Inputs: nav_msgs/Odometry on `odom` (the base in the odometry frame), the localizer's
+// ground_texture_bow/LoopClosure on `loop_closures`, and on `fixes` its ~pose in a session on
+// an earlier map (~anchor: fixes): the base in map_frame from a match to that map's keyframes,
+// whose poses are fixed; the first two agreeing fixes place the session in the map. A closure
+// relates two camera poses in the camera's optical frame; the node turns it into a relation between
+// base poses with the camera's mounting (TF base frame -> the closure's header frame, or
+// ~camera_offset), and the pose graph (include/ground_texture_bow/backend/pose_graph.h) does the
+// rest. Outputs: TF map -> odom, ~path (nav_msgs/Path of the graph's nodes), the optimised
 // trajectory as CSV (~save_trajectory, and ~trajectory_csv at shutdown), and the keyframes'
 // optimised poses: the localizer announces each keyframe it adds (its ~keyframes: id, image
 // stamp, camera frame); after each optimisation the backend publishes on `keyframe_poses` the
@@ -31,6 +33,7 @@
 #include <utility>
 #include <vector>
 
+#include <geometry_msgs/PoseWithCovarianceStamped.h>
 #include <geometry_msgs/TransformStamped.h>
 #include <nav_msgs/Odometry.h>
 #include <nav_msgs/Path.h>
@@ -140,10 +143,13 @@ class Backend {
     odom_sub_ = nh_.subscribe("odom", 2000, &Backend::OnOdometry, this);
     closure_sub_ = nh_.subscribe("loop_closures", 2000, &Backend::OnClosure, this);
     keyframe_sub_ = nh_.subscribe("keyframes", 2000, &Backend::OnKeyframe, this);
+    fix_sub_ = nh_.subscribe("fixes", 2000, &Backend::OnFix, this);
     keyframe_poses_pub_ = nh_.advertise<ground_texture_bow::KeyframePoses>("keyframe_poses", 10);
     const PoseGraphOptions& o = graph_.options();
-    ROS_INFO("pose_graph_backend: loss %s (%.1f sigma), consistency check %s, map frame %s",
-             o.loss.c_str(), o.loss_scale, o.consistency_check ? "on" : "off", map_frame_.c_str());
+    ROS_INFO("pose_graph_backend: loss %s (%.1f sigma), consistency check %s, map frame %s%s",
+             o.loss.c_str(), o.loss_scale, o.consistency_check ? "on" : "off", map_frame_.c_str(),
+             o.anchor_at_start ? " (the odometry frame at the start)"
+                               : " (an earlier map's: placed by the first fixes)");
   }
 
   // At shutdown: the final optimisation and ~trajectory_csv.
@@ -172,6 +178,15 @@ class Backend {
     pnh.param("consistency_window", o.consistency_window, o.consistency_window);
     pnh.param("consistency_chi2", o.consistency_chi2, o.consistency_chi2);
     pnh.param("max_iterations", o.max_iterations, o.max_iterations);
+    std::string anchor = "start";
+    pnh.param<std::string>("anchor", anchor, anchor);
+    if (anchor != "start" && anchor != "fixes") {
+      throw std::invalid_argument(
+          "~anchor must be start (a new map) or fixes (a session on an "
+          "earlier map), not '" +
+          anchor + "'");
+    }
+    o.anchor_at_start = anchor == "start";
     o.Check();  // throws naming the bad parameter
     return o;
   }
@@ -198,7 +213,7 @@ class Backend {
     DrainWaiting();
     // map -> odom from the first odometry on (the identity until a closure moves it): a
     // localizer placing keyframes through it needs it before the first optimisation.
-    if (!last_tf_) PublishTf();
+    if (!last_tf_) PublishTf();  // (not before an earlier map's frame is placed)
   }
 
   // A keyframe the localizer added; a new stamp for a known id is a new map (reset or loaded).
@@ -218,6 +233,7 @@ class Backend {
   // keyframes whose pose changed since it was last sent (or was never sent). Returns the stamp
   // of the message published (zero: none).
   ros::Time PublishKeyframePoses() {
+    if (!graph_.anchored()) return ros::Time();  // no map frame yet
     ground_texture_bow::KeyframePoses msg;
     for (auto& [id, k] : keyframes_) {
       if (!graph_.Covers(k.stamp_ns)) continue;
@@ -247,6 +263,34 @@ class Backend {
     last_poses_stamp_ = msg.header.stamp;
     keyframe_poses_pub_.publish(msg);
     return msg.header.stamp;
+  }
+
+  // The robot's base in map_frame from a match to an earlier map's keyframes (the localizer's
+  // ~pose in a session on a loaded map).
+  void OnFix(const geometry_msgs::PoseWithCovarianceStamped& msg) {
+    ++fixes_received_;
+    const std::string what = "fix at " + StampText(msg.header.stamp);
+    if (msg.header.frame_id != map_frame_) {
+      return Reject(what + ": in frame '" + msg.header.frame_id + "', not ~map_frame '" +
+                    map_frame_ + "'");
+    }
+    if (msg.header.stamp.isZero()) return Reject(what + ": zero stamp");
+    const auto& p = msg.pose.pose;
+    gtbow::backend::Fix f;
+    f.stamp_ns = Ns(msg.header.stamp);
+    f.map_from_base = {
+        p.position.x, p.position.y,
+        gtbow_ros::YawOf(p.orientation.x, p.orientation.y, p.orientation.z, p.orientation.w)};
+    const int idx[3] = {0, 1, 5};  // x, y, yaw of the 6 x 6 covariance
+    for (int i = 0; i < 3; ++i) {
+      for (int j = 0; j < 3; ++j)
+        f.covariance[3 * i + j] = msg.pose.covariance[6 * idx[i] + idx[j]];
+    }
+    for (double c : f.covariance) {
+      if (!std::isfinite(c)) return Reject(what + ": non-finite covariance");
+    }
+    waiting_fixes_.push_back({f, ros::Time::now()});
+    DrainWaiting();
   }
 
   void OnClosure(const LoopClosure& msg) {
@@ -301,6 +345,35 @@ class Backend {
   // Closures enter the graph once the odometry covers both stamps and the mounting is known.
   void DrainWaiting() {
     const ros::Time now = ros::Time::now();
+    while (!waiting_fixes_.empty()) {
+      const gtbow::backend::Fix& f = waiting_fixes_.front().fix;
+      ros::Time stamp;
+      stamp.fromNSec(static_cast<uint64_t>(f.stamp_ns));
+      if (!graph_.Covers(f.stamp_ns)) {
+        if (graph_.HasOdometry() && f.stamp_ns < graph_.FirstStamp()) {
+          waiting_fixes_.pop_front();
+          Reject("fix at " + StampText(stamp) + ": before the first odometry");
+          continue;
+        }
+        if ((now - waiting_fixes_.front().received).toSec() <= closure_wait_) break;
+        waiting_fixes_.pop_front();
+        Reject("fix at " + StampText(stamp) + ": no odometry for its stamp within ~closure_wait");
+        continue;
+      }
+      const bool was = graph_.anchored();
+      try {
+        graph_.AddFix(f);
+      } catch (const std::exception& ex) {
+        Reject("fix at " + StampText(stamp) + ": " + ex.what());
+      }
+      if (!was && graph_.anchored()) {
+        ros::Time at;
+        at.fromNSec(static_cast<uint64_t>(graph_.anchored_at_ns()));
+        ROS_INFO("pose_graph_backend: placed in %s by the fix at %s (%zu fixes so far)",
+                 map_frame_.c_str(), StampText(at).c_str(), graph_.fixes_added());
+      }
+      waiting_fixes_.pop_front();
+    }
     while (!waiting_.empty()) {
       const LoopClosure& msg = waiting_.front().msg;
       const std::string what = "loop closure (query " + StampText(msg.query_stamp) + ", match " +
@@ -356,7 +429,7 @@ class Backend {
   }
 
   void PublishTf() {
-    if (publish_tf_ && graph_.HasOdometry() && !odom_frame_.empty()) {
+    if (publish_tf_ && graph_.HasOdometry() && !odom_frame_.empty() && graph_.anchored()) {
       const Pose2D m = graph_.MapFromOdom();
       // TF ignores a repeated stamp: once the odometry stops, a changed correction goes out
       // 1 ms after the previous one, an unchanged one not at all.
@@ -397,6 +470,11 @@ class Backend {
   bool WriteTrajectory(const std::string& path, std::string* error) {
     if (!graph_.HasOdometry()) {
       *error = "no odometry received: no trajectory to write to " + path;
+      return false;
+    }
+    if (!graph_.anchored()) {
+      *error = "not placed in " + map_frame_ + " yet (no two agreeing fixes from the earlier " +
+               "map): no trajectory to write to " + path;
       return false;
     }
     if (!camera_offset_ && !camera_frame_.empty()) camera_offset_ = CameraOffset(camera_frame_);
@@ -441,7 +519,14 @@ class Backend {
     res.closures_pending = static_cast<uint32_t>(graph_.pending());
     res.closures_rejected = static_cast<uint32_t>(rejected_input_);
     res.closures_downweighted = static_cast<uint32_t>(last_downweighted_);
-    res.keyframe_poses_stamp = PublishKeyframePoses();
+    // The newest keyframe_poses message (this call's, or an earlier one when no pose changed
+    // since): once applied, the localizer holds the poses of this optimisation.
+    PublishKeyframePoses();
+    res.keyframe_poses_stamp = last_poses_stamp_;
+    res.fixes_received = static_cast<uint32_t>(fixes_received_);
+    res.fixes_accepted = static_cast<uint32_t>(graph_.fixes_accepted());
+    res.anchored = graph_.anchored();
+    res.anchored_at.fromNSec(static_cast<uint64_t>(graph_.anchored_at_ns()));
     if (req.closure_query_stamps.size() != req.closure_match_stamps.size()) {
       res.status =
           gtbow_ros::MakeStatus(ground_texture_bow::Status::INVALID_ARGUMENT,
@@ -486,6 +571,10 @@ class Backend {
     LoopClosure msg;
     ros::Time received;
   };
+  struct WaitingFix {
+    gtbow::backend::Fix fix;
+    ros::Time received;
+  };
   struct KeyframeEntry {
     int64_t stamp_ns = 0;
     std::string frame;           // the camera frame its mounting is looked up for
@@ -497,7 +586,9 @@ class Backend {
   tf2_ros::Buffer tf_buffer_;
   tf2_ros::TransformListener tf_listener_;
   tf2_ros::TransformBroadcaster tf_broadcaster_;
-  ros::Subscriber odom_sub_, closure_sub_, keyframe_sub_;
+  ros::Subscriber odom_sub_, closure_sub_, keyframe_sub_, fix_sub_;
+  std::deque<WaitingFix> waiting_fixes_;
+  size_t fixes_received_ = 0;
   ros::Publisher path_pub_, keyframe_poses_pub_;
   std::map<uint32_t, KeyframeEntry> keyframes_;  // the localizer's keyframes, by id
   ros::Time last_poses_stamp_;

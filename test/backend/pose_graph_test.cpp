@@ -229,6 +229,67 @@ TEST(PoseGraph, TheConsistencyCheckAloneKeepsTheWrongClosureOut) {
   EXPECT_GT(control.rmse, 2 * kMaxRmse) << "the control should bend the whole trajectory";
 }
 
+// A second session on a map made before: odometry from the origin (the robot booted somewhere
+// on the floor), fixes from verified matches to the old map's keyframes (their poses are fixed,
+// so a fix is the base's pose in the map frame). Nothing is placed before two fixes agree; the
+// first accepted fix places the map frame, and the session's own closures and later fixes then
+// hold the trajectory to the truth. A wrong fix (5 cm off) finds no partner and stays out.
+TEST(PoseGraph, ASessionOnAnEarlierMapIsAnchoredByItsFixes) {
+  const std::vector<Pose2D> truth =
+      synth::DrivePath(1.2, 0.8, ImageGeometry{640, 480, 0.00025}, 6.0, 0.01, 1.0 / 3.0);
+  std::vector<Pose2D> odom = synth::SimulateOdometry(truth, synth::OdometryNoise{}, 11);
+  const Pose2D boot = Inverse(odom.front());
+  for (Pose2D& p : odom) p = Compose(boot, p);
+  PoseGraphOptions o;
+  o.anchor_at_start = false;
+  PoseGraph g{o};
+  for (size_t i = 0; i < odom.size(); ++i) g.AddOdometry(static_cast<int64_t>(i) * kStep, odom[i]);
+  EXPECT_FALSE(g.anchored());
+  for (const Closure& c : TrueClosures(truth, 200)) g.AddClosure(c);
+  EXPECT_FALSE(g.Optimize().ran) << "no map frame yet: nothing to optimise";
+  std::mt19937 rng(5);
+  std::normal_distribution<double> n(0.0, 1.0);
+  auto fix_at = [&](size_t i, double off) {
+    Fix f;
+    f.stamp_ns = static_cast<int64_t>(i) * kStep;
+    f.map_from_base = truth[i];
+    f.map_from_base.x += off + 2e-4 * n(rng);
+    f.map_from_base.y += 2e-4 * n(rng);
+    f.map_from_base.theta += 1e-3 * n(rng);
+    f.covariance = {4e-8, 0, 0, 0, 4e-8, 0, 0, 0, 1e-6};
+    return f;
+  };
+  EXPECT_EQ(g.AddFix(fix_at(10, 0.05)), ClosureState::kPending);  // wrong: 5 cm off
+  EXPECT_EQ(g.AddFix(fix_at(14, 0.0)), ClosureState::kPending);   // alone so far
+  EXPECT_FALSE(g.anchored());
+  EXPECT_EQ(g.AddFix(fix_at(18, 0.0)), ClosureState::kAccepted);  // agrees with the one at 14
+  EXPECT_EQ(g.FixState(1), ClosureState::kAccepted);
+  EXPECT_TRUE(g.anchored());
+  EXPECT_EQ(g.anchored_at_ns(), 18 * kStep);  // when the fix at 18 confirmed the one at 14
+  // Later fixes come in runs, as a robot's consecutive images match the old map.
+  for (size_t i = 100; i + 5 < truth.size(); i += 100) {
+    g.AddFix(fix_at(i, 0.0));
+    g.AddFix(fix_at(i + 5, 0.0));
+  }
+  EXPECT_TRUE(g.Optimize().ran);
+  EXPECT_EQ(g.FixState(0), ClosureState::kPending) << "the wrong fix found a partner";
+  std::vector<Pose2D> est;
+  for (const auto& p : g.Trajectory()) est.push_back(p.map_from_base);
+  std::vector<Pose2D> anchored_odom;
+  const Pose2D map_from_odom_start = Compose(truth.front(), Inverse(odom.front()));
+  for (const Pose2D& p : odom) anchored_odom.push_back(Compose(map_from_odom_start, p));
+  const double rmse = Rmse(truth, est), odometry = Rmse(truth, anchored_odom);
+  std::printf(
+      "second session: anchored at sample 18, ATE RMSE %.3f mm (odometry placed by its "
+      "true start: %.2f mm), %zu of %zu fixes accepted\n",
+      1e3 * rmse, 1e3 * odometry, g.fixes_accepted(), g.fixes_added());
+  EXPECT_LT(rmse, 0.001);
+  EXPECT_GT(odometry, 5 * rmse);
+  // map -> odom: the map frame is not the odometry's (the robot booted elsewhere).
+  const Pose2D m = g.MapFromOdom();
+  EXPECT_GT(std::hypot(m.x, m.y), 0.1);
+}
+
 TEST(PoseGraph, RefusesBadInput) {
   PoseGraph g{PoseGraphOptions{}};
   g.AddOdometry(10, {0, 0, 0});

@@ -193,6 +193,50 @@ TEST(Mapper, TheKeyframePolicyMeasuresOdometryAndTheKeyframeKeepsItsMapPose) {
   EXPECT_GT(differ, 0u) << "the negative control: jumpy poses should choose other keyframes";
 }
 
+// A session on a map made before: the earlier keyframes are never "recent" (exclude_recent
+// leaves out only this session's newest), and a closure to one of them is a fix in the map
+// (the keyframe's fixed pose composed with the relative one), which the node publishes instead
+// of a loop closure; a closure to this session's own keyframes is none.
+TEST(Mapper, MatchesToAnEarlierSessionsKeyframesAreFixesInItsMap) {
+  const Drive& d = TheDrive();
+  auto loc = NewLocalizer();
+  MapperOptions o;
+  o.exclude_recent = 5;
+  {
+    Mapper first(loc.get(), o);
+    for (size_t i = 0; i < 60; ++i) first.Process(d.images[i], Stamp(i), d.truth[i]);
+  }
+  const uint32_t earlier = static_cast<uint32_t>(loc->size());
+  ASSERT_GT(earlier, 10u);
+  o.exclude_recent = 1000;  // more than the map holds: only this session's keyframes count
+  Mapper second(loc.get(), o);
+  EXPECT_EQ(second.session_start(), earlier);
+  size_t fixes = 0, right = 0, closures_to_own = 0;
+  for (size_t i = 60; i < d.images.size(); ++i) {
+    const MapperStep s = second.Process(d.images[i], Stamp(i), d.truth[i]);
+    if (s.closure < 0) continue;
+    const Candidate& c = s.candidates[static_cast<size_t>(s.closure)];
+    if (c.id >= earlier) {
+      ++closures_to_own;
+      EXPECT_FALSE(s.fix) << "image " << i << ": keyframe " << c.id << " is this session's";
+      continue;
+    }
+    ASSERT_TRUE(s.fix) << "image " << i << ": keyframe " << c.id << " is an earlier session's";
+    ++fixes;
+    const Pose2D& p = s.fix->floor_from_query;
+    right += 1000 * std::hypot(p.x - d.truth[i].x, p.y - d.truth[i].y) <= 4.8 &&
+             std::abs(WrapAngle(p.theta - d.truth[i].theta)) <= 1.5 * M_PI / 180;
+    EXPECT_GT(s.fix->covariance[0], 0.0);
+  }
+  std::printf(
+      "second session: %zu fixes in the earlier map (%zu within 4.8 mm and 1.5 degrees), "
+      "%zu closures to its own keyframes\n",
+      fixes, right, closures_to_own);
+  EXPECT_GE(fixes, 10u);
+  EXPECT_GE(right * 100, fixes * 95);
+  EXPECT_EQ(closures_to_own, 0u) << "exclude_recent 1000 leaves out every keyframe of its own";
+}
+
 // Without poses, every keyframe_every_n-th image; temporal consistency holds each closure until
 // N images in a row agree, and a held closure is reported as held, not published.
 TEST(Mapper, WithoutPosesEveryNthImageAndTemporalConsistencyHoldsClosures) {

@@ -7,6 +7,9 @@
 // (its own state, by its stamps, after every later closure) and does not bend it, with the
 // consistency check alone (no robust loss) as well as with the defaults; with neither defence
 // it is accepted and bends the trajectory (the negative control showing the check matters).
+// The localizer maps beside the default backend (~slam_backend): the map it saves after the
+// backend's last optimisation must hold the optimised keyframe poses (much closer to the truth
+// than the odometry they were first placed with), in the frame "map", marked optimised.
 // Then the run's trajectories and closures go through scripts/backend_ate.py and
 // scripts/closure_precision.py, which must report what this test measured.
 #include <unistd.h>
@@ -16,7 +19,10 @@
 #include <nav_msgs/Odometry.h>
 
 #include "../core/test_util.h"
+#include "ground_texture_bow/SaveMap.h"
 #include "ground_texture_bow/SaveTrajectory.h"
+#include "ground_texture_bow/core/localizer.h"
+#include "ground_texture_bow/core/vocabulary.h"
 #include "ground_texture_bow/eval/dataset.h"
 #include "rostest_util.h"
 
@@ -381,6 +387,65 @@ TEST(Backend, ClosuresCorrectTheOdometryAndAWrongOneIsIgnored) {
   // the trajectory beyond the bound.
   EXPECT_GT(fold["backend_unprotected"], 2 * kMaxFold);
   EXPECT_GT(fold["backend_unprotected"], 3.0 * fold["backend_check_only"] + kMaxFold);
+
+  // The localizer's map after the default backend's last optimisation: the backend publishes
+  // the keyframes' poses with its save_trajectory; the localizer reports the newest applied.
+  {
+    SaveTrajectory last;
+    last = Call("/backend/save_trajectory", last);
+    ASSERT_EQ(last.response.status.code, Status::OK) << last.response.status.message;
+    ASSERT_FALSE(last.response.keyframe_poses_stamp.isZero())
+        << "the backend published no keyframe poses (is ~keyframes connected?)";
+    const ros::WallTime limit = ros::WallTime::now() + ros::WallDuration(30);
+    while (Info("/localizer").keyframe_poses_stamp < last.response.keyframe_poses_stamp &&
+           ros::WallTime::now() < limit) {
+      ros::WallDuration(0.05).sleep();
+    }
+    const auto li = Info("/localizer");
+    ASSERT_GE(li.keyframe_poses_stamp, last.response.keyframe_poses_stamp)
+        << "the localizer did not apply the backend's keyframe poses";
+    EXPECT_TRUE(li.poses_optimised);
+    EXPECT_EQ(li.pose_frame, "map");
+    ground_texture_bow::SaveMap save;
+    save.request.path = (dir / "optimised.gtmap").string();
+    save = Call("/localizer/save_map", save);
+    ASSERT_EQ(save.response.status.code, Status::OK) << save.response.status.message;
+    const gtbow::MapFileInfo mi = gtbow::Localizer::ReadMapInfo(save.request.path);
+    EXPECT_EQ(mi.pose_frame, "map");
+    EXPECT_TRUE(mi.poses_optimised);
+    gtbow::LocalizerOptions lo;
+    lo.retrieval = gtbow::ParseRetrievalConfig(mi.retrieval_config, "the map");
+    lo.meters_per_pixel = mi.meters_per_pixel;
+    lo.keep_descriptors = mi.descriptors;
+    gtbow::Localizer saved(gtbow::Vocabulary::Load(g_data + "/vocab.gtvoc"), mi.vocabulary_path,
+                           lo);
+    saved.Load(save.request.path);
+    // Each keyframe (an image of the drive, by its stamp) against the truth, and the odometry
+    // it was placed with before any correction (the map -> odom of the start is the identity).
+    Errors map_err, odo_err;
+    auto add = [](Errors* e, double d) {
+      e->rmse += d * d;  // a sum of squares until the root below
+      e->max = std::max(e->max, d);
+    };
+    for (const gtbow::Keyframe& k : saved.Keyframes()) {
+      ASSERT_TRUE(k.has_pose) << "keyframe " << k.id;
+      ros::Time t;
+      t.fromNSec(static_cast<uint64_t>(k.stamp_ns));
+      const size_t i = index_of.at(t);
+      const gtbow::Pose2D& tr = frames[i].truth;
+      add(&map_err, std::hypot(k.map_from_camera.x - tr.x, k.map_from_camera.y - tr.y));
+      add(&odo_err, std::hypot(odometry[i].x - tr.x, odometry[i].y - tr.y));
+    }
+    map_err.rmse = std::sqrt(map_err.rmse / static_cast<double>(saved.size()));
+    odo_err.rmse = std::sqrt(odo_err.rmse / static_cast<double>(saved.size()));
+    std::printf(
+        "the localizer's saved map: %zu keyframes, error RMSE %.2f mm, max %.2f mm (at their "
+        "odometry poses: %.2f, %.2f mm)\n",
+        saved.size(), 1e3 * map_err.rmse, 1e3 * map_err.max, 1e3 * odo_err.rmse, 1e3 * odo_err.max);
+    EXPECT_GT(saved.size(), 20u);
+    EXPECT_LT(map_err.rmse, 0.25 * odo_err.rmse) << "the keyframes kept the odometry's drift";
+    EXPECT_LT(map_err.rmse, kMaxAte);
+  }
 
   // For Backend.TheScriptsReportTheRun (which removes dir).
   g_run.dir = dir;

@@ -1,8 +1,11 @@
 // A small 2-D pose-graph backend (issue 15, part 5): wheel odometry plus the localizer's loop
 // closures, optimised with Ceres. ROS-free; the node (src/ros/pose_graph_backend.cpp) feeds it.
 //
-// Nodes are robot (base frame) poses at the stamps loop closures refer to, plus one at the
-// first odometry sample, which anchors the map frame (map = odom at the start). Odometry
+// Nodes are robot (base frame) poses at the stamps loop closures and fixes refer to, plus one at
+// the first odometry sample, which anchors the map frame (map = odom at the start) unless the
+// graph is anchored by fixes: a session on a map made before (anchor_at_start false) starts
+// with no map frame, and its first accepted fix (a verified match to that map's keyframes,
+// whose poses are fixed) places it; fixes are unary edges on the base's pose. Odometry
 // between consecutive nodes is interpolated from the odometry samples and becomes an edge whose
 // variance grows with the distance driven and the angle turned. Loop closures are edges with
 // their own covariance. Two defences against wrong closures:
@@ -44,6 +47,9 @@ struct PoseGraphOptions {
   double consistency_window = 0.5;  // m of driving between the ends of two closures
   double consistency_chi2 = 16.27;  // gate on the cycle error (3 dof, 99.9%)
   int max_iterations = 100;
+  // true: the map frame is the odometry frame at the first sample (a new map). false: it is a
+  // map's made before, given by fixes (AddFix): nothing is placed before the first accepted fix.
+  bool anchor_at_start = true;
   size_t max_odometry_samples = 5000000;  // refuse to grow beyond (memory bound)
 
   void Check() const;  // throws std::invalid_argument naming the first bad field
@@ -54,6 +60,14 @@ struct Closure {
   int64_t match_ns = 0;
   int64_t query_ns = 0;
   Pose2D match_from_query;
+  std::array<double, 9> covariance{};  // row-major x, y, theta
+};
+
+// The base's pose in the map frame at `stamp_ns`, from a verified match to a keyframe whose pose
+// is fixed (a map made before this session).
+struct Fix {
+  int64_t stamp_ns = 0;
+  Pose2D map_from_base;
   std::array<double, 9> covariance{};  // row-major x, y, theta
 };
 
@@ -97,6 +111,23 @@ class PoseGraph {
   // Throws std::out_of_range for an id not yet given.
   ClosureState State(size_t id) const;
 
+  // A fix whose stamp the odometry covers (else std::invalid_argument, as for a non-finite pose
+  // or a covariance that is not symmetric positive definite). With the consistency check it is
+  // pending until another fix within consistency_window of driving agrees with it through
+  // odometry, then both are accepted; the first accepted fix anchors a graph that waits for one
+  // (anchor_at_start false). Returns its state; its id is fixes_added() - 1.
+  ClosureState AddFix(const Fix& fix);
+  size_t fixes_added() const { return fixes_.size(); }
+  size_t fixes_accepted() const { return fixes_accepted_; }
+  size_t fixes_pending() const { return fixes_pending_; }
+  ClosureState FixState(size_t id) const;  // std::out_of_range for an id not yet given
+  // Whether the map frame is known: from the start, or since the first accepted fix. Poses,
+  // the trajectory and map -> odom mean nothing before (they are odometry).
+  bool anchored() const { return options_.anchor_at_start || anchored_at_ns_ != 0; }
+  // The stamp of the fix that anchored the graph, the second of the first two that agree (0:
+  // anchored at the start, or not yet).
+  int64_t anchored_at_ns() const { return anchored_at_ns_; }
+
   // Optimises the graph (warm-started from the last solution). Cheap when nothing changed.
   SolveReport Optimize();
   bool dirty() const { return dirty_; }
@@ -136,17 +167,27 @@ class PoseGraph {
     ClosureState state;
     double match_dist, query_dist;
   };
+  struct StoredFix {
+    Fix f;
+    ClosureState state;
+    double dist;
+  };
 
   Sample Interpolate(int64_t t) const;
   Node& NodeAt(int64_t t);
   bool Consistent(const StoredClosure& a, const StoredClosure& b) const;
+  bool Consistent(const StoredFix& a, const StoredFix& b) const;
   void Accept(StoredClosure* s);
+  void Accept(StoredFix* s);
   std::array<double, 9> OdometryCovariance(double distance, double turn) const;
 
   PoseGraphOptions options_;
   std::vector<Sample> odom_;
   std::map<int64_t, Node> nodes_;
   std::vector<StoredClosure> closures_;
+  std::vector<StoredFix> fixes_;
+  int64_t anchored_at_ns_ = 0;
+  size_t fixes_accepted_ = 0, fixes_pending_ = 0;
   size_t accepted_ = 0, pending_ = 0, rejected_ = 0;
   bool dirty_ = false;
 };

@@ -2,7 +2,8 @@
 // external) mode, in one place, so that `gtbow slam` and the tests run exactly what the node
 // runs. For each image (its features, stamp and optional pose in the map frame) the mapper
 //   1. queries the map for the top K keyframes, verified, leaving out the newest
-//      `exclude_recent` keyframes (the robot's own recent past, which trivially overlaps it);
+//      `exclude_recent` keyframes of this session (the robot's own recent past, which trivially
+//      overlaps it);
 //   2. decides whether the image becomes a keyframe (moved keyframe_min_distance or turned
 //      keyframe_min_angle since the last one when poses are known, else every Nth image) and
 //      adds it;
@@ -43,6 +44,12 @@ struct MapperStep {
   int closure = -1;
   bool publish = false;
   int run = 0;  // consecutive agreeing images so far, this one included (0: none)
+  // When the closure's keyframe belongs to a map made before this session (loaded before the
+  // mapper started or was last Reset), its pose is fixed: the match places the camera in the
+  // map. `fix` is then that pose (the keyframe's pose composed with the relative one; the
+  // covariance in the map frame) and the node publishes it as a fix (~pose), not as a loop
+  // closure: a backend anchors the session in the old map with it.
+  std::optional<PoseEstimate> fix;
 };
 
 class Mapper {
@@ -62,8 +69,11 @@ class Mapper {
                      const std::optional<Pose2D>& motion = std::nullopt);
 
   // Forgets the keyframe policy's state and the temporal run: after the map is loaded, reset
-  // or replaced. Safe from any thread (it waits for a Process in progress).
+  // or replaced; the keyframes the map holds then are the earlier sessions' (fixed poses, never
+  // left out as recent). Safe from any thread (it waits for a Process in progress).
   void Reset();
+  // The first keyframe id of this session (the keyframes before it were in the map already).
+  uint32_t session_start() const;
 
   const MapperOptions& options() const { return options_; }
 
@@ -72,10 +82,11 @@ class Mapper {
 
   Localizer* localizer_;
   MapperOptions options_;
-  std::mutex mutex_;  // one Process at a time; guards everything below
+  mutable std::mutex mutex_;  // one Process at a time; guards everything below
   TemporalConsistency temporal_;
   std::optional<Pose2D> last_keyframe_pose_;
   uint64_t frames_since_keyframe_ = 0;
+  uint32_t session_start_ = 0;
 };
 
 }  // namespace gtbow
