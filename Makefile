@@ -72,7 +72,7 @@ build: deps ws-src
 # evaluation (gtbow eval) of the same floor.
 demo: build
 	@bash scripts/backend_demo.sh "$(WS)" build/demo
-	@$(GTBOW) eval --dataset build/demo/floor --vocab build/demo/floor.gtvoc --out build/demo/eval \
+	@$(GTBOW) eval --dataset build/demo/floor --words 3000 --out build/demo/eval \
 	  --cache build/cache --timing-queries 20 -q
 
 test: deps ws-src
