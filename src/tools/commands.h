@@ -13,7 +13,7 @@ void RegisterBenchRetrieval(CLI::App& app);
 void RegisterBenchScaling(CLI::App& app);  // gtbow bench-scaling (alias: bench)
 void RegisterBenchMap(CLI::App& app);      // gtbow bench-map
 void RegisterEval(CLI::App& app);
-void RegisterMapCommands(CLI::App& app);  // map-info, convert-map
+void RegisterMapCommands(CLI::App& app);  // map-info, convert-map, localize
 void RegisterSlam(CLI::App& app);         // gtbow slam
 
 }  // namespace tools

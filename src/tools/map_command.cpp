@@ -1,15 +1,21 @@
-// gtbow map-info and gtbow convert-map: what a map file holds, and converting a map of the
-// first format version (read whole into the heap) to the memory-mapped one.
+// gtbow map-info, gtbow convert-map and gtbow localize: what a map file holds, converting a map of
+// the first format version (read whole into the heap) to the memory-mapped one, and localizing
+// a dataset's images on a map offline, as the node in localization mode does (Localizer::Localize).
+#include <algorithm>
+#include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <memory>
 #include <string>
+#include <vector>
 
 #include "commands.h"
 #include "ground_texture_bow/core/config.h"
 #include "ground_texture_bow/core/file_util.h"
 #include "ground_texture_bow/core/localizer.h"
+#include "ground_texture_bow/core/progress.h"
 #include "ground_texture_bow/core/vocabulary.h"
+#include "ground_texture_bow/eval/dataset.h"
 
 namespace fs = std::filesystem;
 
@@ -22,6 +28,15 @@ struct ConvertArgs {
   std::string in, out, vocab;
   bool drop_descriptors = false;
 };
+
+struct LocalizeArgs {
+  std::string map, dataset, split = "drive", vocab, out;
+  int every = 1;
+  double scale_tolerance = 0.02;
+  bool quiet = false;
+};
+
+constexpr double kRightMm = 4.8, kRightDeg = 1.5;  // gtbow eval's tolerance
 
 void PrintInfo(const std::string& path) {
   const MapFileInfo i = Localizer::ReadMapInfo(path);
@@ -94,6 +109,78 @@ void Convert(const ConvertArgs& a) {
   PrintInfo(a.out);
 }
 
+// Each image of a split localized on the map; the fixes against the dataset's poses (in the
+// map's frame: a map and a dataset of the same floor and origin, as gtbow slam or the node made
+// the map from the recording).
+void Localize(const LocalizeArgs& a) {
+  if (a.every < 1) throw std::invalid_argument("--every must be >= 1");
+  const MapFileInfo info = Localizer::ReadMapInfo(a.map);
+  if (info.version < 2) throw std::invalid_argument(a.map + ": convert it first (gtbow convert-map)");
+  const Dataset ds = Dataset::Load(a.dataset);
+  const double map_scale = info.meters_per_pixel, ds_scale = ds.info().geometry.meters_per_pixel;
+  if (std::abs(ds_scale / map_scale - 1.0) > a.scale_tolerance) {
+    char buf[256];
+    std::snprintf(buf, sizeof(buf),
+                  "the dataset's scale %.6g m/px differs from the map's %.6g m/px by more than "
+                  "%.0f%% (--scale-tolerance): another camera, lens or height",
+                  ds_scale, map_scale, 100 * a.scale_tolerance);
+    throw std::invalid_argument(a.dataset + ": " + buf);
+  }
+  const auto loc = LocalizerFor(a.map, info, a.vocab, info.descriptors);
+  loc->Load(a.map);
+  const std::vector<std::string> all = ds.Split(a.split);
+  std::vector<std::string> names;
+  for (size_t i = 0; i < all.size(); i += static_cast<size_t>(a.every)) names.push_back(all[i]);
+  std::string csv = "image,localized,x,y,theta,inliers,keyframe,error_mm,error_deg\n";
+  size_t fixes = 0, right = 0, with_truth = 0;
+  std::vector<double> errors;
+  ProgressBar bar("localize", names.size(), !a.quiet);
+  for (const std::string& n : names) {
+    const Localization fix = loc->Localize(loc->Process(ds.LoadGray(n)));
+    char line[256];
+    if (!fix.success) {
+      csv += n + ",0,,,,,,,\n";
+      bar.Add();
+      continue;
+    }
+    ++fixes;
+    const Pose2D& p = fix.estimate.floor_from_query;
+    std::string err = ",";
+    if (ds.HasImage(n)) {
+      ++with_truth;
+      const Pose2D& t = ds.PoseOf(n);
+      const double mm = 1e3 * std::hypot(p.x - t.x, p.y - t.y);
+      const double deg = std::abs(WrapAngle(p.theta - t.theta)) * 180 / M_PI;
+      errors.push_back(mm);
+      right += mm <= kRightMm && deg <= kRightDeg ? 1 : 0;
+      std::snprintf(line, sizeof(line), "%.4f,%.4f", mm, deg);
+      err = line;
+    }
+    std::snprintf(line, sizeof(line), ",1,%.7f,%.7f,%.7f,%d,%u,", p.x, p.y, p.theta,
+                  fix.estimate.inliers, fix.image);
+    csv += n + line + err + "\n";
+    bar.Add();
+  }
+  bar.Finish();
+  if (!a.out.empty()) WriteFileAtomic(a.out, csv);
+  std::printf("%s on %s (%zu keyframes, poses in %s%s): %zu of %zu images of %s got a fix\n",
+              a.split.c_str(), a.map.c_str(), loc->size(),
+              info.pose_frame.empty() ? "an unnamed frame" : info.pose_frame.c_str(),
+              info.poses_optimised ? ", optimised" : "", fixes, names.size(), a.dataset.c_str());
+  if (!errors.empty()) {
+    std::sort(errors.begin(), errors.end());
+    double sq = 0;
+    for (double e : errors) sq += e * e;
+    std::printf(
+        "against the dataset's poses: %zu of %zu images within %.1f mm and %.1f degrees "
+        "(%.1f%%); fixes' position error median %.2f mm, RMSE %.2f mm, max %.2f mm\n",
+        right, names.size(), kRightMm, kRightDeg, 100.0 * static_cast<double>(right) / names.size(),
+        errors[errors.size() / 2], std::sqrt(sq / static_cast<double>(errors.size())),
+        errors.back());
+  }
+  if (!a.out.empty()) std::printf("fixes written to %s\n", a.out.c_str());
+}
+
 }  // namespace
 
 void RegisterMapCommands(CLI::App& app) {
@@ -124,6 +211,23 @@ void RegisterMapCommands(CLI::App& app) {
                 "Keep no keyframe descriptors (8 KB a keyframe for ORB): smaller maps, "
                 "verification from word pairs, no re-query by keyframe id");
   cmd->callback([a]() { Convert(*a); });
+
+  auto l = std::make_shared<LocalizeArgs>();
+  CLI::App* loc = app.add_subcommand(
+      "localize",
+      "Localize a dataset's images on a map, offline, as the node in localization mode does; the "
+      "fixes against the dataset's poses");
+  loc->add_option("--map", l->map, "Map file (.gtmap)")->required()->check(CLI::ExistingFile);
+  loc->add_option("--dataset", l->dataset, "Dataset (docs/DATASET_FORMAT.md)")->required();
+  loc->add_option("--split", l->split, "The split to localize")->capture_default_str();
+  loc->add_option("--every", l->every, "Every Nth image of the split")->capture_default_str();
+  loc->add_option("--vocab", l->vocab, "Vocabulary (default: the path recorded in the map)");
+  loc->add_option("--scale-tolerance", l->scale_tolerance,
+                  "Largest relative difference between the dataset's and the map's scale")
+      ->capture_default_str();
+  loc->add_option("-o,--out", l->out, "Also write every image's fix (and error) as CSV");
+  loc->add_flag("-q,--quiet", l->quiet, "No progress bar");
+  loc->callback([l]() { Localize(*l); });
 }
 
 }  // namespace tools

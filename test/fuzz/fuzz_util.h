@@ -107,7 +107,7 @@ inline std::string RepairDatabase(std::string f) {
   return f;
 }
 
-// The sections of a map file of format version 2 (localizer_map.cpp), read from its header
+// The sections of a map file of format version 2 or 3 (localizer_map.cpp), read from its header
 // without checks beyond bounds; `ok` is false where the header cannot be read.
 struct MapLayout {
   bool ok = false;
@@ -141,6 +141,12 @@ inline MapLayout ParseMapLayout(const std::string& f) {
   std::memcpy(&stride, &f[at], 4);
   l.stride = stride;
   at += 4;
+  uint32_t version;
+  std::memcpy(&version, &f[8], 4);
+  if (version >= 3) {  // the frame of the poses and whether they were optimised
+    if (!skip_string() || !need(1 + 80)) return l;
+    at += 1;
+  }
   for (int s = 0; s < 5; ++s) {
     l.offset[s] = Read64(f, at);
     l.size[s] = Read64(f, at + 8);
@@ -151,7 +157,7 @@ inline MapLayout ParseMapLayout(const std::string& f) {
   return l;
 }
 
-// A map file of format version 2 with every checksum recomputed where the header allows:
+// A map file of format version 2 or 3 with every checksum recomputed where the header allows:
 // the header's, each keyframe payload's (in its record), each 64 MB chunk's and the table's.
 inline std::string RepairMap(std::string f) {
   constexpr size_t kFixed = 64;

@@ -1,7 +1,8 @@
 // gtbow_bag_to_dataset on the rostests' drive bag (a robot's recording: images, camera_info,
 // wheel odometry as TF odom -> base_link, the camera's static mount): the dataset it writes
 // holds the recording's images and odometry exactly and the scale from camera_info and TF, and
-// the package's tools take it from there (train-vocab, then slam: loop closures and a map).
+// the package's tools take it from there (train-vocab, then slam: loop closures and a map, then
+// localize: the drive's images on that map, against the ground truth).
 #include <filesystem>
 #include <fstream>
 #include <string>
@@ -71,6 +72,36 @@ TEST_F(BagToDataset, ARecordingBecomesADatasetThatTheToolsMapFrom) {
   const YAML::Node s = YAML::LoadFile((dir_ / "slam" / "summary.json").string());
   EXPECT_GE(s["closures"]["published"].as<int>(), 10) << r.output;
   EXPECT_TRUE(fs::exists(dir_ / "slam" / "map.gtmap"));
+
+  // And the robot localizes on that map: every 4th image of the original drive (half of them
+  // never in the bag's dataset, which kept every 2nd) against the drive's ground truth, in the
+  // frame where the recording started.
+  r = RunCommand(std::string(GTBOW_BIN) + " localize --map " + Out("slam/map.gtmap") +
+                 " --dataset " + data + "/drive --every 4 --out " + Out("fixes.csv") + " -q");
+  ASSERT_EQ(r.code, 0) << r.output;
+  int right = 0, total = 0;
+  ASSERT_EQ(std::sscanf(r.output.c_str() + r.output.find("against the dataset's poses: "),
+                        "against the dataset's poses: %d of %d", &right, &total),
+            2)
+      << r.output;
+  EXPECT_EQ(total, static_cast<int>((original.size() + 3) / 4));
+  EXPECT_GE(right * 100, total * 95) << r.output;
+  EXPECT_TRUE(fs::exists(dir_ / "fixes.csv"));
+  // A dataset at another scale (the drive's, its dataset.yaml saying 0.3 mm per pixel) is
+  // refused, naming both.
+  fs::create_directories(dir_ / "scaled");
+  for (const char* entry : {"images", "sequences", "poses.csv"}) {
+    fs::create_symlink(fs::path(data) / "drive" / entry, dir_ / "scaled" / entry);
+  }
+  {
+    YAML::Node y = YAML::LoadFile(data + "/drive/dataset.yaml");
+    y["meters_per_pixel"] = 0.0003;
+    std::ofstream(dir_ / "scaled" / "dataset.yaml") << y;
+  }
+  r = RunCommand(std::string(GTBOW_BIN) + " localize --map " + Out("slam/map.gtmap") +
+                 " --dataset " + Out("scaled") + " -q");
+  EXPECT_NE(r.code, 0);
+  EXPECT_NE(r.output.find("differs from the map's"), std::string::npos) << r.output;
 }
 
 TEST_F(BagToDataset, BadInputIsNamedAndLeavesNothing) {

@@ -1,5 +1,5 @@
 // large_map.test (LargeMap.*): a map of a few thousand keyframes through ~save_map and
-// ~load_map (map format version 2, src/core/localizer_map.cpp). The mapper takes every image of
+// ~load_map (map format version 3, src/core/localizer_map.cpp). The mapper takes every image of
 // a 2,000-image run as a keyframe and answers each query image (~query_candidates, k = 5,
 // verified, and ~localize); then it saves. A fresh node in localization mode loads the file
 // (memory-mapped), and the mapper itself, which after the save answers from the file's mapping
@@ -147,7 +147,7 @@ TEST(LargeMap, SavedAndLoadedAnswersAreThoseBeforeTheSave) {
   ASSERT_EQ(save.response.status.code, Status::OK) << save.response.status.message;
   const ros::WallTime t3 = ros::WallTime::now();
   const gtbow::MapFileInfo header = gtbow::Localizer::ReadMapInfo(map_path);
-  EXPECT_EQ(header.version, 2u);
+  EXPECT_EQ(header.version, 3u);
   EXPECT_EQ(header.keyframes, n);
   EXPECT_EQ(header.meters_per_pixel, mpp);
   EXPECT_TRUE(header.descriptors);
