@@ -223,17 +223,18 @@ SOAK = {
 
 # --- make benchmark-kernels: scripts/benchmark_kernels.sh (write_kernels.py, section kernels).
 # The targets of the issue on robot computers without AVX-512, on one machine, one thread,
-# 320 x 240 real floors. The authors' 8.7 ms (napp-lab/GTBoW, high accuracy, r = 3) was measured
-# on an AVX2 AMD EPYC, not on the machine of the run: it is quoted.
+# 320 x 240 real floors. The authors' 8.7 ms (napp-lab/GTBoW, high accuracy, r = 3) is the
+# issue's figure from an AVX2 AMD EPYC, quoted (their code is not part of this repository); timed
+# again on such a machine in December 2026 it took 10.1 ms as published and 7.9 ms with
+# -march=native (RESULTS.md 'Kernels: what is met and what is not').
 AUTHORS_TRANSFORM_MS = 8.7
 KERNELS = {
     "avx2_ratio": open_("BoW transform, high accuracy, avx2 against avx512", "<=", 1.5, "x",
                         "RESULTS.md 'Kernels: what is met and what is not'"),
     "popcnt_ratio": open_("BoW transform, high accuracy, popcnt against avx512", "<=", 2.5, "x",
                           "RESULTS.md 'Kernels: what is met and what is not'"),
-    "avx2_vs_authors": open_("BoW transform, high accuracy, avx2: 3x faster than the authors' "
-                             "8.7 ms (quoted)", "<=", AUTHORS_TRANSFORM_MS / 3, "ms",
-                             "RESULTS.md 'Kernels: what is met and what is not'"),
+    "avx2_vs_authors": claim("BoW transform, high accuracy, avx2: 3x faster than the authors' "
+                             "8.7 ms (quoted)", "<=", AUTHORS_TRANSFORM_MS / 3, "ms"),
     "train_avx2_s": claim("vocabulary training, V = 20,000 on 240 images, one thread, avx2", "<=",
                           30.0, "s"),
 }
