@@ -22,8 +22,6 @@ inline constexpr size_t kFixedHeader = 32;  // magic, version, entry size, two s
 inline constexpr size_t kEntriesAlignment = 64;
 inline constexpr size_t kChecksumChunk = size_t{64} << 20;
 inline constexpr float kTwoPi = static_cast<float>(2.0 * M_PI);
-// Accumulator bytes per query block: about a quarter of this machine's per-core L2.
-inline constexpr size_t kBlockBytes = size_t{1} << 20;
 
 // Orientation stored in 8 bits: 256 steps per turn (1.4 degrees).
 inline uint8_t QuantizeAngle(float a) {

@@ -3,8 +3,11 @@
 // threads; the top N kept in a heap. Results are identical for any thread count.
 #include "ground_texture_bow/core/database.h"
 
+#include <unistd.h>
+
 #include <algorithm>
 #include <cmath>
+#include <cstdlib>
 #include <cstring>
 #include <mutex>
 #include <stdexcept>
@@ -20,11 +23,30 @@ namespace {
 
 using namespace database_internal;
 
-// Per-thread scratch for queries: an accumulator over one block of images x bins.
+constexpr size_t kPrefetchAhead = 8;  // segments
+
+// Bytes of the accumulator of one block of images: a quarter of the core's L2 cache (the
+// postings stream through it beside the accumulator), between 64 KB and 1 MB; 1 MB when the
+// system does not say (and before December 2026 on every machine). GTBOW_QUERY_BLOCK_BYTES
+// overrides it, for benchmarks. Answers do not depend on it (each image's votes add up in
+// segment order whatever the blocks).
+size_t BlockBytes() {
+  static const size_t bytes = [] {
+    if (const char* env = std::getenv("GTBOW_QUERY_BLOCK_BYTES"); env != nullptr && *env) {
+      const long long v = std::atoll(env);
+      if (v >= 4096) return static_cast<size_t>(v);
+    }
+    const long l2 = ::sysconf(_SC_LEVEL2_CACHE_SIZE);
+    if (l2 <= 0) return size_t{1} << 20;
+    return std::clamp(static_cast<size_t>(l2) / 4, size_t{64} << 10, size_t{1} << 20);
+  }();
+  return bytes;
+}
+
+// Per-thread scratch for queries: an accumulator over one block of images x bins (all zero
+// between blocks).
 struct Scratch {
   std::vector<float> acc;
-  std::vector<uint32_t> touched;  // images of the block (relative ids) with votes
-  std::vector<uint8_t> seen;
 };
 
 Scratch& ThreadScratch() {
@@ -78,6 +100,7 @@ struct QueryPlan {
   int bins;
   bool ov;
   bool l1;
+  bool any_removed;  // some image is removed: entries are checked against `removed`
   uint32_t n_images;
   uint32_t block;
   const std::vector<uint8_t>* removed;
@@ -93,8 +116,6 @@ void ScoreBlocks(const std::vector<Segment<E>>& segs, const QueryPlan& p, uint32
   Scratch& s = ThreadScratch();
   const size_t acc_size = static_cast<size_t>(p.block) * p.bins;
   if (s.acc.size() < acc_size) s.acc.assign(acc_size, 0.0f);
-  if (s.seen.size() < p.block) s.seen.assign(p.block, 0);
-  s.touched.clear();
   const std::vector<uint8_t>& removed = *p.removed;
   const uint32_t first = b0 * p.block;
   std::vector<const E*> cur(segs.size());
@@ -103,19 +124,15 @@ void ScoreBlocks(const std::vector<Segment<E>>& segs, const QueryPlan& p, uint32
                               [](const E& x, uint32_t img) { return x.image() < img; });
   }
   float* acc = s.acc.data();
-  uint8_t* seen = s.seen.data();
   for (uint32_t b = b0; b < b1; ++b) {
     const uint32_t img0 = b * p.block;
     const uint32_t blen = std::min(p.n_images - img0, p.block);
-    auto touch = [&](uint32_t rel) {
-      if (!seen[rel]) {
-        seen[rel] = 1;
-        s.touched.push_back(rel);
-      }
-    };
     for (size_t j = 0; j < segs.size(); ++j) {
       const Segment<E>& g = segs[j];
       const E* x = cur[j];
+      // The run of a segment a few ahead: its first cache lines are a miss each block (a block
+      // reads hundreds of short runs, more streams than the hardware prefetcher follows).
+      if (j + kPrefetchAhead < segs.size()) __builtin_prefetch(cur[j + kPrefetchAhead]);
       // Entries past the block end the scan; ids are in order within a segment (an id below
       // the block, possible only in a damaged file, also ends it: the scan stays in bounds).
       if (p.l1) {
@@ -126,8 +143,7 @@ void ScoreBlocks(const std::vector<Segment<E>>& segs, const QueryPlan& p, uint32
           if (rel >= blen) break;
           float w = 0.0f;
           for (; x < g.end && x->image() == img; ++x) w += x->weight();
-          if (removed[img]) continue;
-          touch(rel);
+          if (p.any_removed && removed[img]) continue;
           acc[rel] += std::min(g.wq, w);
         }
       } else if (!p.ov) {
@@ -135,8 +151,7 @@ void ScoreBlocks(const std::vector<Segment<E>>& segs, const QueryPlan& p, uint32
           const uint32_t img = x->image();
           const uint32_t rel = img - img0;
           if (rel >= blen) break;
-          if (removed[img]) continue;
-          touch(rel);
+          if (p.any_removed && removed[img]) continue;
           acc[rel] += g.wq * x->weight();
         }
       } else {
@@ -144,8 +159,7 @@ void ScoreBlocks(const std::vector<Segment<E>>& segs, const QueryPlan& p, uint32
           const uint32_t img = x->image();
           const uint32_t rel = img - img0;
           if (rel >= blen) break;
-          if (removed[img]) continue;
-          touch(rel);
+          if (p.any_removed && removed[img]) continue;
           float* a = acc + static_cast<size_t>(rel) * p.bins;
           const uint8_t ang = x->angle();
           const float w = x->weight();
@@ -156,16 +170,17 @@ void ScoreBlocks(const std::vector<Segment<E>>& segs, const QueryPlan& p, uint32
       }
       cur[j] = x;
     }
-    // Scores: the best bin of each touched image.
-    for (uint32_t rel : s.touched) {
-      float* a = acc + static_cast<size_t>(rel) * p.bins;
+    // Scores: the best bin of each image with votes (every vote is positive, so an image has
+    // votes exactly when its best bin is above zero). The whole block is read rather than a list
+    // of the images voted for kept entry by entry: on a large map nearly every image of a block
+    // gets votes, and the bookkeeping cost more than it saved.
+    for (uint32_t rel = 0; rel < blen; ++rel) {
+      const float* a = acc + static_cast<size_t>(rel) * p.bins;
       int best = 0;
       for (int k = 1; k < p.bins; ++k) best = a[k] > a[best] ? k : best;
-      top->Offer({a[best], img0 + rel, p.ov ? best : -1});
-      std::fill(a, a + p.bins, 0.0f);
-      seen[rel] = 0;
+      if (a[best] > 0.0f) top->Offer({a[best], img0 + rel, p.ov ? best : -1});
     }
-    s.touched.clear();
+    std::fill(acc, acc + static_cast<size_t>(blen) * p.bins, 0.0f);
   }
 }
 
@@ -180,8 +195,9 @@ std::vector<QueryResult> QueryIndex(const PostingIndex<E>& index, uint32_t num_r
   p.l1 = options.scoring == Scoring::kDbowL1;
   p.n_images = static_cast<uint32_t>(removed.size());
   p.removed = &removed;
-  uint32_t block = 4096;
-  while (static_cast<size_t>(block) * 2 * p.bins * sizeof(float) <= kBlockBytes) block *= 2;
+  p.any_removed = std::memchr(removed.data(), 1, removed.size()) != nullptr;
+  uint32_t block = 1024;
+  while (static_cast<size_t>(block) * 2 * p.bins * sizeof(float) <= BlockBytes()) block *= 2;
   p.block = block;
   for (int d = 0; d < 256; ++d) p.bin_of[d] = static_cast<uint8_t>(d * p.bins / 256);
   std::vector<uint8_t> qa(q.angles.size());

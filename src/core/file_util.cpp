@@ -126,12 +126,14 @@ void AtomicFileWriter::Write(const void* data, size_t size) {
   written_ += size;
 }
 
-void AtomicFileWriter::WriteBehind(size_t offset, size_t size) {
+void AtomicFileWriter::WriteBehind(size_t offset, size_t size, bool drop) {
   if (fd_ < 0 || size == 0) return;
   ::sync_file_range(
       fd_, static_cast<off_t>(offset), static_cast<off_t>(size),
       SYNC_FILE_RANGE_WAIT_BEFORE | SYNC_FILE_RANGE_WRITE | SYNC_FILE_RANGE_WAIT_AFTER);
-  ::posix_fadvise(fd_, static_cast<off_t>(offset), static_cast<off_t>(size), POSIX_FADV_DONTNEED);
+  if (drop) {
+    ::posix_fadvise(fd_, static_cast<off_t>(offset), static_cast<off_t>(size), POSIX_FADV_DONTNEED);
+  }
 }
 
 void AtomicFileWriter::Commit() { Publish(false); }

@@ -15,6 +15,8 @@
 //   payloads      per keyframe: packed keypoints, then descriptors when kept; each has its
 //                 checksum in its record, checked when the keyframe is read (a load reads only
 //                 the index and records, not gigabytes of keypoints it may never need)
+#include <pthread.h>
+#include <sched.h>
 #include <sys/resource.h>
 #include <sys/syscall.h>
 #include <unistd.h>
@@ -68,7 +70,7 @@ std::string ConvertHint(const std::string& source) {
 class ChunkedRegion {
  public:
   ChunkedRegion(AtomicFileWriter* file, uint64_t size)
-      : file_(file), size_(size), chunk_(std::min(kChunk, size)) {}
+      : file_(file), size_(size), chunk_(std::min(kChunk, size)), flushed_(file->written()) {}
   void Write(const void* data, size_t n) {
     const char* p = static_cast<const char*>(data);
     while (n > 0) {
@@ -83,6 +85,10 @@ class ChunkedRegion {
         sums_.push_back(chunk_.Finish());
         in_chunk_ = 0;
         chunk_ = Checksum64Builder(std::min(kChunk, size_ - done_));
+        // Each 64 MB to disk from this (low-priority) thread, kept in the page cache: the index
+        // is memory-mapped from it right after the save.
+        file_->WriteBehind(flushed_, file_->written() - flushed_, false);
+        flushed_ = file_->written();
       }
     }
   }
@@ -98,6 +104,7 @@ class ChunkedRegion {
   AtomicFileWriter* file_;
   uint64_t size_;
   Checksum64Builder chunk_;
+  uint64_t flushed_;  // the file's bytes written to disk so far
   uint64_t in_chunk_ = 0, done_ = 0;
   std::vector<uint64_t> sums_;
 };
@@ -114,13 +121,20 @@ void TouchPages(const char* data, size_t size) {
   (void)sink;
 }
 
-// Runs `work` on a thread of its own at nice 19 (its own thread: an unprivileged process can
-// lower a thread's priority but not raise it back) and waits; its exception is rethrown here.
+// Runs `work` on a thread of its own at the lowest priorities (its own thread: an unprivileged
+// process can lower a thread's priority but not raise it back) and waits; its exception is
+// rethrown here. CPU: SCHED_IDLE (any other thread that wakes up preempts it at once; nice 19 if
+// the kernel refuses). Disk: the idle I/O class, served when no other I/O waits.
 template <class Work>
 void RunAtLowestPriority(Work&& work) {
   std::exception_ptr error;
   std::thread worker([&] {
-    ::setpriority(PRIO_PROCESS, static_cast<id_t>(::syscall(SYS_gettid)), 19);
+    const pid_t tid = static_cast<pid_t>(::syscall(SYS_gettid));
+    ::setpriority(PRIO_PROCESS, static_cast<id_t>(tid), 19);
+    sched_param idle{};
+    ::pthread_setschedparam(::pthread_self(), SCHED_IDLE, &idle);
+    constexpr int kIoprioWhoProcess = 1, kIoprioClassIdle = 3, kIoprioClassShift = 13;
+    ::syscall(SYS_ioprio_set, kIoprioWhoProcess, tid, kIoprioClassIdle << kIoprioClassShift);
     try {
       work();
     } catch (...) {
@@ -411,13 +425,17 @@ SaveStats Localizer::Save(const std::filesystem::path& path) const {
   auto segment = std::make_shared<const detail::KeyframeSegment>(
       reinterpret_cast<const detail::KeyframeRecord*>(d + l.offset[kRecords]), n,
       reinterpret_cast<const uint8_t*>(d + l.offset[kPayload]), l.size[kPayload], stride, mapped);
-  stats.swap_ms = db->Rebase(frozen, d + l.offset[kIndexEntries], mapped);
-  std::unique_lock<std::shared_mutex> lock(mutex_);
-  const auto t0 = Clock::now();
-  if (generation_ == generation) keyframes_->Rebase(std::move(segment));
-  stats.swap_ms += ms(t0, Clock::now());
-  lock.unlock();
-  segments.clear();  // the sealed heap keyframes are freed here, outside the lock
+  // The swaps hold the lock for a few pointer exchanges; the heap copies they free (gigabytes
+  // of a large map) are freed by the low-priority thread too, outside the lock.
+  RunAtLowestPriority([&] {
+    stats.swap_ms = db->Rebase(frozen, d + l.offset[kIndexEntries], mapped);
+    std::unique_lock<std::shared_mutex> lock(mutex_);
+    const auto t0 = Clock::now();
+    if (generation_ == generation) keyframes_->Rebase(std::move(segment));
+    stats.swap_ms += ms(t0, Clock::now());
+    lock.unlock();
+    segments.clear();  // the sealed heap keyframes
+  });
   return stats;
 }
 

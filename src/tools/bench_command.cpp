@@ -57,8 +57,7 @@ void RunOne(const BenchArgs& a, const std::string& preset, const RetrievalConfig
 void RunBench(const BenchArgs& a) {
   std::vector<RetrievalConfig> configs;
   for (const auto& p : a.presets) configs.push_back(LoadRetrievalConfig(p));
-  if (configs.empty())
-    configs.push_back(LoadRetrievalConfig(GTBOW_CONFIG_DIR "/high_accuracy.yaml"));
+  if (configs.empty()) configs.push_back(LoadRetrievalConfig(ConfigFile("high_accuracy.yaml")));
   if (!a.ann.empty()) {
     for (auto& c : configs) c.vocabulary.ann = ParseAnnIndex(a.ann);
   }

@@ -109,9 +109,8 @@ std::vector<Variant> Variants(const BenchMapArgs& a) {
   for (const auto& p : a.presets)
     base.push_back({fs::path(p).stem().string(), LoadRetrievalConfig(p), true});
   if (base.empty()) {
-    base.push_back({"fast", LoadRetrievalConfig(GTBOW_CONFIG_DIR "/fast.yaml"), true});
-    base.push_back(
-        {"high_accuracy", LoadRetrievalConfig(GTBOW_CONFIG_DIR "/high_accuracy.yaml"), false});
+    base.push_back({"fast", LoadRetrievalConfig(ConfigFile("fast.yaml")), true});
+    base.push_back({"high_accuracy", LoadRetrievalConfig(ConfigFile("high_accuracy.yaml")), false});
   }
   std::vector<Variant> out;
   for (Variant v : base) {

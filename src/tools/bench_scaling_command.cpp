@@ -302,9 +302,8 @@ void RunScaling(ScalingArgs a) {
   for (const auto& p : a.presets)
     presets.emplace_back(fs::path(p).stem().string(), LoadRetrievalConfig(p));
   if (presets.empty()) {
-    presets.emplace_back("high_accuracy",
-                         LoadRetrievalConfig(GTBOW_CONFIG_DIR "/high_accuracy.yaml"));
-    presets.emplace_back("fast", LoadRetrievalConfig(GTBOW_CONFIG_DIR "/fast.yaml"));
+    presets.emplace_back("high_accuracy", LoadRetrievalConfig(ConfigFile("high_accuracy.yaml")));
+    presets.emplace_back("fast", LoadRetrievalConfig(ConfigFile("fast.yaml")));
   }
   const fs::path out = a.out;
   CheckWritableDirectory(out, "--out");

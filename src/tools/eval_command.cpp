@@ -396,11 +396,11 @@ void RunEval(const EvalArgs& a) {
       throw std::invalid_argument("--ablation runs its own presets; drop --preset");
     for (const auto& [row, file] : kAblation) {
       rows.push_back(row);
-      presets.push_back(std::string(GTBOW_CONFIG_DIR "/") + file);
+      presets.push_back(ConfigFile(file));
     }
   }
   if (presets.empty()) {
-    presets.emplace_back(GTBOW_CONFIG_DIR "/high_accuracy.yaml");
+    presets.emplace_back(ConfigFile("high_accuracy.yaml"));
     rows.emplace_back();
   }
   // Every preset is read now: a typo in the last of several presets fails before hours of work.

@@ -137,6 +137,20 @@ std::vector<ImageFeatures> LoadFeatures(const fs::path& path, size_t expected) {
 
 }  // namespace
 
+std::string ConfigFile(const std::string& name) {
+  static const fs::path dir = [] {
+    std::error_code ec;
+    const fs::path exe = fs::read_symlink("/proc/self/exe", ec);
+    if (!ec) {
+      const fs::path installed =
+          exe.parent_path().parent_path() / "share" / "ground_texture_bow" / "config";
+      if (fs::is_regular_file(installed / "high_accuracy.yaml", ec)) return installed;
+    }
+    return fs::path(GTBOW_CONFIG_DIR);
+  }();
+  return (dir / name).string();
+}
+
 fs::path DefaultCacheDir() {
   if (const char* x = std::getenv("XDG_CACHE_HOME"); x != nullptr && *x != '\0') {
     return fs::path(x) / "ground_texture_bow";

@@ -55,6 +55,11 @@ std::vector<ImageFeatures> ExtractAllCached(const ImageSource& source,
 // The default cache directory: $XDG_CACHE_HOME/ground_texture_bow or ~/.cache/ground_texture_bow.
 std::filesystem::path DefaultCacheDir();
 
+// A file of the package's config directory (presets, the node's and the backend's parameter
+// files): beside an installed gtbow (<prefix>/bin/gtbow: <prefix>/share/ground_texture_bow/config,
+// as catkin_make install lays it out), else the source tree's this binary was built from.
+std::string ConfigFile(const std::string& name);
+
 // Trains a vocabulary of configuration `config` on the features of training images (idf over
 // these images; percentile size thresholds for config.bow.num_size_bins). Throws when there are
 // too few descriptors.

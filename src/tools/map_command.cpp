@@ -115,7 +115,8 @@ void Convert(const ConvertArgs& a) {
 void Localize(const LocalizeArgs& a) {
   if (a.every < 1) throw std::invalid_argument("--every must be >= 1");
   const MapFileInfo info = Localizer::ReadMapInfo(a.map);
-  if (info.version < 2) throw std::invalid_argument(a.map + ": convert it first (gtbow convert-map)");
+  if (info.version < 2)
+    throw std::invalid_argument(a.map + ": convert it first (gtbow convert-map)");
   const Dataset ds = Dataset::Load(a.dataset);
   const double map_scale = info.meters_per_pixel, ds_scale = ds.info().geometry.meters_per_pixel;
   if (std::abs(ds_scale / map_scale - 1.0) > a.scale_tolerance) {

@@ -46,8 +46,8 @@ struct SlamArgs {
   std::string odometry;  // default: DATASET/drive_odometry.csv
   std::string vocab;
   std::string preset;
-  std::string params = GTBOW_CONFIG_DIR "/localizer.yaml";
-  std::string backend = GTBOW_CONFIG_DIR "/backend.yaml";
+  std::string params = ConfigFile("localizer.yaml");
+  std::string backend = ConfigFile("backend.yaml");
   std::string out = "gtbow_slam";
   std::string map_frame = "map";  // the frame the saved map's poses are in
   double start = 1000.0;          // s: the first image's stamp
@@ -157,7 +157,7 @@ void RunSlam(const SlamArgs& a) {
   }
 
   RetrievalConfig config =
-      LoadRetrievalConfig(a.preset.empty() ? GTBOW_CONFIG_DIR "/high_accuracy.yaml" : a.preset);
+      LoadRetrievalConfig(a.preset.empty() ? ConfigFile("high_accuracy.yaml") : a.preset);
   LocalizerOptions lo;
   lo.retrieval = config;
   lo.meters_per_pixel = ds.info().geometry.meters_per_pixel;

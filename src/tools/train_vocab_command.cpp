@@ -29,7 +29,7 @@ struct TrainArgs {
 void RunTrain(const TrainArgs& a) {
   const auto start = std::chrono::steady_clock::now();
   RetrievalConfig c =
-      LoadRetrievalConfig(a.preset.empty() ? GTBOW_CONFIG_DIR "/high_accuracy.yaml" : a.preset);
+      LoadRetrievalConfig(a.preset.empty() ? ConfigFile("high_accuracy.yaml") : a.preset);
   if (a.words > 0) c.vocabulary.num_words = a.words;
   if (a.seed >= 0) c.vocabulary.seed = static_cast<uint64_t>(a.seed);
   c.vocabulary.threads = a.threads;

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The package from an install space (catkin_make install), with no devel space or source tree
 # on the ROS package path: the nodelet loads, finds its default preset in the install space's
-# share directory, and serves. Writes a JUnit result for the test summary.
+# share directory, and serves; the installed gtbow takes its defaults from there too. Writes a JUnit result for the test summary.
 # Usage: install_space_test.sh INSTALL_DIR VOCABULARY RESULT_XML
 set -uo pipefail
 install="$1"
@@ -34,7 +34,10 @@ if [ -z "$failure" ]; then
   echo "$out" | grep -q "package: $install/share/ground_texture_bow" ||
     failure="rospack does not find the installed package: $out"
   echo "$out" | grep -q "preset: \"$expected\"" ||
-    failure="${failure:+$failure; }the node's preset is not the installed one: $out $(tail -5 "$work/launch.log" 2>/dev/null)"
+    failure="${failure:+$failure; }the node's preset is not the installed one: $out $(tail -5 "$work/launch.log" 2>/dev/null)"  # gtbow (ROS-free) finds its presets and parameter files beside itself, not in the source tree.
+  tools="$(run "'$install/bin/gtbow' slam --help" 2>&1)"
+  echo "$tools" | grep -q "$install/share/ground_texture_bow/config/localizer.yaml" ||
+    failure="${failure:+$failure; }gtbow's default parameter files are not the installed ones: $(echo "$tools" | grep -- --params)"
 fi
 mkdir -p "$(dirname "$xml")"
 if [ -z "$failure" ]; then

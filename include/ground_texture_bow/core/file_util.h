@@ -35,9 +35,11 @@ class AtomicFileWriter {
   void Write(const void* data, size_t size);
   void Write(std::string_view piece) { Write(piece.data(), piece.size()); }
   size_t written() const { return written_; }
-  // Starts writing bytes [offset, offset + size) to disk, waits for it, and drops them from
-  // the page cache (write-behind for files of gigabytes). Best effort: never fails.
-  void WriteBehind(size_t offset, size_t size);
+  // Writes bytes [offset, offset + size) to disk and waits for it, from the calling thread
+  // (write-behind for files of gigabytes: the kernel's flusher threads, which run at normal
+  // priority, then have nothing left to write, and the final fsync little), and with `drop`
+  // drops them from the page cache. Best effort: never fails.
+  void WriteBehind(size_t offset, size_t size, bool drop = true);
   void Commit();
   // Commit, and a read-only mapping of the bytes written (taken before the rename).
   std::shared_ptr<const MappedFile> CommitAndMap();
