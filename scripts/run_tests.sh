@@ -19,6 +19,9 @@ if [ "$mode" = "sanitize" ]; then
   reports="$ws/../sanitizer"
   rm -rf "$reports"
   mkdir -p "$reports"
+  # The nodes' output, searched for UBSan's reports (which go to stderr) with the test log.
+  export ROS_LOG_DIR="$ws/../ros_log_sanitize"
+  rm -rf "$ROS_LOG_DIR"
   cmake_args=(-DCMAKE_BUILD_TYPE=RelWithDebInfo -DGTBOW_SANITIZE=ON)
   supp="$(cd "$(dirname "$0")/.." && pwd)/test/sanitizer"
   # intercept_tls_get_addr=0: up to GCC 13 the runtime's __tls_get_addr interceptor takes a
@@ -107,7 +110,8 @@ fi
 summary=$?
 if [ "$mode" = "sanitize" ]; then
   # Reports of defects fail the run; a sanitizer's own crash is shown and counted apart.
-  /usr/bin/python3 "$(dirname "$0")/sanitizer_reports.py" "$reports" || summary=1
+  /usr/bin/python3 "$(dirname "$0")/sanitizer_reports.py" "$reports" "$log" "$ROS_LOG_DIR" ||
+    summary=1
 fi
 if [ $status -ne 0 ] && [ $summary -eq 0 ]; then
   echo "run_tests exited with $status: see $log"

@@ -11,7 +11,13 @@ roslaunch), its tracer thread can fault ("Tracer caught signal 11 ... LeakSaniti
 encountered a fatal error"). That says nothing of our code, and the process's leak check did
 not run: each such log is printed whole, named, and counted on a line of its own.
 
-Usage: sanitizer_reports.py REPORTS_DIR. Exits 1 when any log reports a defect."""
+UndefinedBehaviorSanitizer, linked beside AddressSanitizer (GCC 12), ignores log_path and
+prints its reports to the process's stderr: so the run's output (the test log, the ROS log
+directory) is searched too, for the lines of a defect only (a test's ordinary output is not a
+report).
+
+Usage: sanitizer_reports.py REPORTS_DIR [OUTPUT_FILE_OR_DIR ...]. Exits 1 when any log reports a
+defect."""
 import os
 import re
 import sys
@@ -30,13 +36,24 @@ def classify(text):
     return "unknown"
 
 
-def main(root):
-    files = sorted(os.path.join(d, f) for d, _, fs in os.walk(root) for f in fs)
+def files_under(path):
+    if os.path.isfile(path):
+        return [path]
+    return sorted(os.path.join(d, f) for d, _, fs in os.walk(path) for f in fs)
+
+
+def main(root, outputs):
     defects, tools, unknown = [], [], []
-    for path in files:
+    for path in files_under(root):
         with open(path, errors="replace") as f:
             text = f.read()
         {"defect": defects, "tool": tools, "unknown": unknown}[classify(text)].append((path, text))
+    for output in outputs:
+        for path in files_under(output):
+            with open(path, errors="replace") as f:
+                text = f.read()
+            if DEFECT.search(text):
+                defects.append((path, text))
     for path, text in defects + unknown:
         first = next((l for l in text.splitlines() if DEFECT.search(l)), None)
         print(f"== {path}")
@@ -56,4 +73,4 @@ def main(root):
 
 
 if __name__ == "__main__":
-    sys.exit(main(sys.argv[1]))
+    sys.exit(main(sys.argv[1], sys.argv[2:]))

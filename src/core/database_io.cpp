@@ -212,7 +212,8 @@ void BowDatabase::WriteFrozen(
 }
 
 double BowDatabase::Rebase(const Frozen& frozen, const char* entries,
-                           std::shared_ptr<const void> keep_alive) {
+                           std::shared_ptr<const void> keep_alive,
+                           std::shared_ptr<void>* replaced) {
   double held = 0;
   auto rebase = [&](auto* index) {
     using Index = std::remove_reference_t<decltype(*index)>;
@@ -229,18 +230,26 @@ double BowDatabase::Rebase(const Frozen& frozen, const char* entries,
     if (static_cast<uint64_t>(p - entries) != frozen.entries_bytes) {
       throw std::logic_error("BowDatabase::Rebase: the index changed since Freeze");
     }
-    std::vector<std::vector<E>> garbage;
-    std::shared_ptr<const void> old = std::move(keep_alive);
+    struct Replaced {
+      std::vector<typename Index::Base> base;
+      std::vector<std::vector<E>> sealed;
+      std::shared_ptr<const void> keep_alive;
+    };
+    auto old = std::make_shared<Replaced>();
+    old->base = std::move(fresh);
+    old->keep_alive = std::move(keep_alive);
     std::unique_lock<std::shared_mutex> lock(mutex_);
     const auto t0 = std::chrono::steady_clock::now();
-    index->base.swap(fresh);
-    index->sealed.swap(garbage);
-    index->keep_alive.swap(old);
+    index->base.swap(old->base);
+    index->sealed.swap(old->sealed);
+    index->keep_alive.swap(old->keep_alive);
     index->base_bytes = frozen.entries_bytes;
     index->base_mapped = true;
     held = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
     lock.unlock();
-    // The heap copies, the old base array and the old mapping are freed here, without the lock.
+    // The heap copies, the old base array and the old mapping: freed without the lock, here or
+    // by the caller.
+    if (replaced != nullptr) *replaced = std::move(old);
   };
   if (compact_) {
     rebase(compact_.get());

@@ -223,7 +223,7 @@ std::vector<QueryResult> QueryIndex(const PostingIndex<E>& index, uint32_t num_r
   p.l1 = options.scoring == Scoring::kDbowL1;
   p.n_images = static_cast<uint32_t>(removed.size());
   p.removed = &removed;
-  p.any_removed = std::memchr(removed.data(), 1, removed.size()) != nullptr;
+  p.any_removed = !removed.empty() && std::memchr(removed.data(), 1, removed.size()) != nullptr;
   uint32_t block = 1024;
   while (static_cast<size_t>(block) * 2 * p.bins * sizeof(float) <= BlockBytes()) block *= 2;
   p.block = block;

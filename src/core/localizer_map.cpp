@@ -16,7 +16,6 @@
 //                 checksum in its record, checked when the keyframe is read (a load reads only
 //                 the index and records, not gigabytes of keypoints it may never need)
 #include <pthread.h>
-#include <sched.h>
 #include <sys/resource.h>
 #include <sys/syscall.h>
 #include <unistd.h>
@@ -24,6 +23,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdlib>
 #include <cstring>
 #include <exception>
 #include <mutex>
@@ -65,6 +65,14 @@ std::string ConvertHint(const std::string& source) {
          "directly any more; convert it once: gtbow convert-map --in " + source + " --out NEW_FILE";
 }
 
+bool IndexWriteBehind() {
+  static const bool on = [] {
+    const char* env = std::getenv("GTBOW_SAVE_WRITE_BEHIND");
+    return env == nullptr || std::string(env) != "0";
+  }();
+  return on;
+}
+
 // The sections' bytes [offset of kIndexHeader, offset of kChecksums) go through this: it writes
 // them and keeps a checksum per 64 MB of them.
 class ChunkedRegion {
@@ -86,8 +94,9 @@ class ChunkedRegion {
         in_chunk_ = 0;
         chunk_ = Checksum64Builder(std::min(kChunk, size_ - done_));
         // Each 64 MB to disk from this (low-priority) thread, kept in the page cache: the index
-        // is memory-mapped from it right after the save.
-        file_->WriteBehind(flushed_, file_->written() - flushed_, false);
+        // is memory-mapped from it right after the save. GTBOW_SAVE_WRITE_BEHIND=0 leaves it to
+        // the kernel's flusher threads (as before December 2026), for measurements.
+        if (IndexWriteBehind()) file_->WriteBehind(flushed_, file_->written() - flushed_, false);
         flushed_ = file_->written();
       }
     }
@@ -121,20 +130,22 @@ void TouchPages(const char* data, size_t size) {
   (void)sink;
 }
 
-// Runs `work` on a thread of its own at the lowest priorities (its own thread: an unprivileged
-// process can lower a thread's priority but not raise it back) and waits; its exception is
-// rethrown here. CPU: SCHED_IDLE (any other thread that wakes up preempts it at once; nice 19 if
-// the kernel refuses). Disk: the idle I/O class, served when no other I/O waits.
+// Runs `work` on a thread of its own at low priority (its own thread: an unprivileged process
+// can lower a thread's priority but not raise it back) and waits; its exception is rethrown
+// here. CPU: nice 19. Disk: the best-effort I/O class at its lowest level. Neither starves: a
+// save finishes on a robot whose cores and disk are kept busy (SCHED_IDLE and the idle I/O
+// class, tried in December 2026, could wait without end there, and a thread holding a lock at
+// SCHED_IDLE stalls every thread that waits for it). The work holds no lock of the Localizer's.
 template <class Work>
-void RunAtLowestPriority(Work&& work) {
+void RunAtLowPriority(Work&& work) {
   std::exception_ptr error;
   std::thread worker([&] {
     const pid_t tid = static_cast<pid_t>(::syscall(SYS_gettid));
     ::setpriority(PRIO_PROCESS, static_cast<id_t>(tid), 19);
-    sched_param idle{};
-    ::pthread_setschedparam(::pthread_self(), SCHED_IDLE, &idle);
-    constexpr int kIoprioWhoProcess = 1, kIoprioClassIdle = 3, kIoprioClassShift = 13;
-    ::syscall(SYS_ioprio_set, kIoprioWhoProcess, tid, kIoprioClassIdle << kIoprioClassShift);
+    constexpr int kIoprioWhoProcess = 1, kIoprioClassBestEffort = 2, kIoprioClassShift = 13;
+    constexpr int kLowestLevel = 7;
+    ::syscall(SYS_ioprio_set, kIoprioWhoProcess, tid,
+              (kIoprioClassBestEffort << kIoprioClassShift) | kLowestLevel);
     try {
       work();
     } catch (...) {
@@ -305,7 +316,7 @@ SaveStats Localizer::Save(const std::filesystem::path& path) const {
   size_t stride = 0;
   Layout l;
   std::shared_ptr<const MappedFile> mapped;
-  RunAtLowestPriority([&] {
+  RunAtLowPriority([&] {
     db->DescribeFrozen(&frozen);
     n = frozen.images;
     stride = PayloadStride();
@@ -425,15 +436,19 @@ SaveStats Localizer::Save(const std::filesystem::path& path) const {
   auto segment = std::make_shared<const detail::KeyframeSegment>(
       reinterpret_cast<const detail::KeyframeRecord*>(d + l.offset[kRecords]), n,
       reinterpret_cast<const uint8_t*>(d + l.offset[kPayload]), l.size[kPayload], stride, mapped);
-  // The swaps hold the lock for a few pointer exchanges; the heap copies they free (gigabytes
-  // of a large map) are freed by the low-priority thread too, outside the lock.
-  RunAtLowestPriority([&] {
-    stats.swap_ms = db->Rebase(frozen, d + l.offset[kIndexEntries], mapped);
+  // The swaps hold the lock for a few pointer exchanges, on this thread (at its own priority: a
+  // lock held at low priority would stall the queries waiting for it); the heap copies they
+  // replace (gigabytes of a large map) are freed on the low-priority thread, outside the lock.
+  std::shared_ptr<void> replaced;
+  stats.swap_ms = db->Rebase(frozen, d + l.offset[kIndexEntries], mapped, &replaced);
+  {
     std::unique_lock<std::shared_mutex> lock(mutex_);
     const auto t0 = Clock::now();
     if (generation_ == generation) keyframes_->Rebase(std::move(segment));
     stats.swap_ms += ms(t0, Clock::now());
-    lock.unlock();
+  }
+  RunAtLowPriority([&] {
+    replaced.reset();
     segments.clear();  // the sealed heap keyframes
   });
   return stats;

@@ -77,5 +77,29 @@ TEST_F(TestTools, SanitizerReportsOfDefectsFailAndTheToolsOwnCrashIsShownApart) 
   }
 }
 
+// UBSan beside ASan writes to stderr whatever log_path says: the run's output is searched for
+// defects, and its ordinary lines are no report.
+TEST_F(TestTools, AnUndefinedBehaviourReportInTheTestOutputFailsTheRun) {
+  const fs::path logs = dir_ / "sanitizer";
+  fs::create_directories(logs);
+  const fs::path out = dir_ / "test.log";
+  Write(out, "[ RUN      ] Database.Query\n[       OK ] Database.Query (0 ms)\n");
+  Write(dir_ / "ros_log" / "node-1-stdout.log", "localizer: map loaded\n");
+  const std::string args =
+      "'" + logs.string() + "' '" + out.string() + "' '" + (dir_ / "ros_log").string() + "'";
+  auto r = RunCommand("/usr/bin/python3 " GTBOW_SCRIPTS_DIR "/sanitizer_reports.py " + args);
+  EXPECT_EQ(r.code, 0) << r.output;
+  Write(dir_ / "ros_log" / "node-1-stdout.log",
+        "src/core/database_query.cpp:226:30: runtime error: null pointer passed as argument 1\n");
+  r = RunCommand("/usr/bin/python3 " GTBOW_SCRIPTS_DIR "/sanitizer_reports.py " + args);
+  EXPECT_EQ(r.code, 1) << r.output;
+  EXPECT_NE(r.output.find("node-1-stdout.log"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("database_query.cpp:226:30"), std::string::npos) << r.output;
+  fs::remove(dir_ / "ros_log" / "node-1-stdout.log");
+  Write(out, "[ RUN      ] Database.Query\nsrc/a.cpp:1:2: runtime error: load of misaligned\n");
+  r = RunCommand("/usr/bin/python3 " GTBOW_SCRIPTS_DIR "/sanitizer_reports.py " + args);
+  EXPECT_EQ(r.code, 1) << r.output;
+}
+
 }  // namespace
 }  // namespace gtbow

@@ -133,8 +133,11 @@ class BowDatabase {
   void Freeze(Frozen* frozen);
   void DescribeFrozen(Frozen* frozen) const;
   void WriteFrozen(const std::function<void(const void* data, size_t size)>& write) const;
-  // Returns how long it held the lock, milliseconds.
-  double Rebase(const Frozen& frozen, const char* entries, std::shared_ptr<const void> keep_alive);
+  // Returns how long it held the lock, milliseconds. What the swap replaced (the sealed heap
+  // copies, the old base array and mapping) goes to *replaced, for the caller to free where it
+  // chooses (a save frees it on its low-priority thread), or is freed here when it is null.
+  double Rebase(const Frozen& frozen, const char* entries, std::shared_ptr<const void> keep_alive,
+                std::shared_ptr<void>* replaced = nullptr);
   // Attaches an index embedded in a memory-mapped file (the map file): Serialize's header and
   // entries at addresses that `keep_alive` keeps valid; nothing is copied. Load's checks, but
   // not its checksums (the embedding file has its own); errors name `source`.
