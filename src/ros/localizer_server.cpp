@@ -120,6 +120,15 @@ LocalizerServer::~LocalizerServer() {
   initialpose_sub_.shutdown();
   keyframe_poses_sub_.shutdown();
   tf_timer_.stop();
+  // The shutdowns wait for callbacks in progress; those wrote under these locks, and taking each
+  // once orders their writes before the members are destroyed (ThreadSanitizer saw a camera_info
+  // callback's write race with camera_info_'s destruction in a nodelet's teardown).
+  {
+    std::lock_guard<std::mutex> lock(camera_mutex_);
+    camera_info_.reset();
+  }
+  { std::lock_guard<std::mutex> lock(gate_mutex_); }
+  { std::lock_guard<std::mutex> lock(state_mutex_); }
   {
     std::lock_guard<std::mutex> lock(slot_mutex_);
     stop_ = true;
