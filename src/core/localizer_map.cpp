@@ -16,6 +16,7 @@
 //                 checksum in its record, checked when the keyframe is read (a load reads only
 //                 the index and records, not gigabytes of keypoints it may never need)
 #include <pthread.h>
+#include <sched.h>
 #include <sys/resource.h>
 #include <sys/syscall.h>
 #include <unistd.h>
@@ -130,6 +131,16 @@ void TouchPages(const char* data, size_t size) {
   (void)sink;
 }
 
+// GTBOW_SAVE_IDLE=1: the writer at SCHED_IDLE and the idle I/O class instead, as tried in
+// December 2026, to measure the two side by side (bench-map).
+bool IdlePriorities() {
+  static const bool on = [] {
+    const char* env = std::getenv("GTBOW_SAVE_IDLE");
+    return env != nullptr && std::string(env) == "1";
+  }();
+  return on;
+}
+
 // Runs `work` on a thread of its own at low priority (its own thread: an unprivileged process
 // can lower a thread's priority but not raise it back) and waits; its exception is rethrown
 // here. CPU: nice 19. Disk: the best-effort I/O class at its lowest level. Neither starves: a
@@ -142,10 +153,15 @@ void RunAtLowPriority(Work&& work) {
   std::thread worker([&] {
     const pid_t tid = static_cast<pid_t>(::syscall(SYS_gettid));
     ::setpriority(PRIO_PROCESS, static_cast<id_t>(tid), 19);
-    constexpr int kIoprioWhoProcess = 1, kIoprioClassBestEffort = 2, kIoprioClassShift = 13;
-    constexpr int kLowestLevel = 7;
-    ::syscall(SYS_ioprio_set, kIoprioWhoProcess, tid,
-              (kIoprioClassBestEffort << kIoprioClassShift) | kLowestLevel);
+    constexpr int kIoprioWhoProcess = 1, kIoprioClassBestEffort = 2, kIoprioClassIdle = 3;
+    constexpr int kIoprioClassShift = 13, kLowestLevel = 7;
+    int io = (kIoprioClassBestEffort << kIoprioClassShift) | kLowestLevel;
+    if (IdlePriorities()) {  // for measurements only
+      sched_param idle{};
+      ::pthread_setschedparam(::pthread_self(), SCHED_IDLE, &idle);
+      io = kIoprioClassIdle << kIoprioClassShift;
+    }
+    ::syscall(SYS_ioprio_set, kIoprioWhoProcess, tid, io);
     try {
       work();
     } catch (...) {
