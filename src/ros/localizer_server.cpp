@@ -282,14 +282,19 @@ std::optional<gtbow::Pose2D> LocalizerServer::LookupOdometry(const std_msgs::Hea
 }
 
 void LocalizerServer::SendMapToOdom() {
+  if (!options_.publish_tf) return;
   std::optional<gtbow::Pose2D> c;
+  const ros::Time stamp = ros::Time::now() + ros::Duration(options_.transform_tolerance);
   {
     std::lock_guard<std::mutex> lock(gate_mutex_);
     c = gate_.correction();
+    // Once per stamp: a fix and the timer in the same instant of (simulated) time would send
+    // the same stamp twice, which tf2 rejects with a TF_REPEATED_DATA warning each time.
+    if (!c || stamp == last_tf_stamp_) return;  // (a clock that jumps back still publishes)
+    last_tf_stamp_ = stamp;
   }
-  if (!c || !options_.publish_tf) return;
   geometry_msgs::TransformStamped t;
-  t.header.stamp = ros::Time::now() + ros::Duration(options_.transform_tolerance);
+  t.header.stamp = stamp;
   t.header.frame_id = options_.map_frame;
   t.child_frame_id = options_.odom_frame;
   t.transform.translation.x = c->x;

@@ -31,5 +31,6 @@ TEST(ReportCheck, BenchmarkVerification) { RunCase("Verification"); }
 TEST(ReportCheck, BenchmarkKeypoints) { RunCase("Keypoints"); }
 TEST(ReportCheck, BenchmarkAuthors) { RunCase("Authors"); }
 TEST(ReportCheck, Soak) { RunCase("Soak"); }
+TEST(ReportCheck, BenchmarkKernels) { RunCase("Kernels"); }
 
 }  // namespace

@@ -224,6 +224,7 @@ class LocalizerServer {
 
   std::mutex gate_mutex_;
   gtbow::OdometryGate gate_;  // guarded by gate_mutex_
+  ros::Time last_tf_stamp_;   // of the last map -> odom sent; guarded by gate_mutex_
 };
 
 }  // namespace gtbow_ros
