@@ -7,8 +7,9 @@
 #   make test-sanitize  the same with AddressSanitizer + UndefinedBehaviorSanitizer (build/ws-asan),
 #                       then the concurrency tests under ThreadSanitizer (build/ws-tsan)
 #   make fuzz   the libFuzzer targets (clang), FUZZ_SECONDS each (default 600)
-#   make screenshots  the README's pictures (docs/images): the localizer and the backend on a drive
-#                   with RViz under Xvfb (scripts/screenshots.sh)
+#   make screenshots  the README's pictures (docs/images): the localizer and the backend on a drive,
+#                   then a later drive localized on the saved map, with RViz under Xvfb
+#                   (scripts/screenshots.sh)
 #   make test-arm  the SIMD kernels and their tests cross-built for aarch64, run under qemu-user
 #   make soak   10 minutes of a 4x real-time replay through the nodelet with concurrent services
 #   make benchmark  generate the default 32,000-image benchmark (once), evaluate every Table I

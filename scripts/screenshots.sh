@@ -4,7 +4,9 @@
 # launch/backend.launch (the localizer maps in the odometry frame, pose_graph_backend corrects it)
 # with RViz on config/localizer.rviz under Xvfb; then RViz's window is captured (the whole floor,
 # keyframe footprints, loop-closure edges, the backend's path) and the match overlay with the
-# most verified matches is kept.
+# most verified matches is kept. Last, the map is saved with the backend's poses and a drive 30
+# days later (a bag with odometry) is localized on it through demo.launch (mode:=localization
+# publish_tf:=true rviz:=true), as a user replays a later recording: its RViz window is kept too.
 # Usage: screenshots.sh WORKSPACE OUT_DIR IMAGES_DIR
 set -euo pipefail
 ws="$1"
@@ -25,11 +27,15 @@ done
 
 echo "== screenshots 1. a 4 m drive and its vocabulary"
 "$gtbow" synth --out "$out/floor" --area 0.7 0.5 --train 40 --queries 0 --drive 4 \
+  --later-drives 30 --later-drive-length 1.5 \
   --only train,drive --odom-heading-bias 0.004 --odom-turn-bias 0.01 --force -q > /dev/null
 "$gtbow" train-vocab --dataset "$out/floor" --words 2000 --out "$out/floor.gtvoc" -q > /dev/null
 "$ws/devel/bin/gtbow_images_to_bag" --dataset "$out/floor" --split drive \
   --odometry "$out/floor/drive_odometry.csv" --camera-offset 0.12 0.03 1.5708 \
   --out "$out/drive.bag" -q > /dev/null
+"$ws/devel/bin/gtbow_images_to_bag" --dataset "$out/floor" --split drive_day030 \
+  --odometry "$out/floor/drive_day030_odometry.csv" --camera-offset 0.12 0.03 1.5708 \
+  --out "$out/later.bag" -q > /dev/null
 
 source "$here/private_roscore.sh" "$out"  # a private ROS master; pids, cleanup
 display=":$((50 + RANDOM % 40))"
@@ -59,3 +65,21 @@ rosservice call /localizer/get_info | grep -E "database_size|loop_closures" | se
 wait $saver || { echo "screenshots: no match overlay: see $out/save_debug_image.log"; exit 1; }
 cat "$out/save_debug_image.log" | sed 's/^/   /'
 echo "   $images/rviz.png"
+
+echo "== screenshots 4. the map saved, a drive 30 days later localized on it, RViz"
+/usr/bin/python3 "$here/save_optimised_map.py" "$out/floor.gtmap" > "$out/save_map.log" 2>&1 ||
+  { cat "$out/save_map.log"; exit 1; }
+for p in "${pids[@]:2}"; do kill -INT "$p" 2>/dev/null || true; done  # all but roscore and Xvfb
+sleep 5
+roslaunch ground_texture_bow demo.launch bag:="$out/later.bag" map:="$out/floor.gtmap" \
+  mode:=localization publish_tf:=true rviz:=true > "$out/localization.log" 2>&1 &
+pids+=($!)
+# The bag starts 3 s after the launch; RViz stays open after it.
+for _ in $(seq 120); do
+  rosservice call /localizer/get_info 2>/dev/null | grep -q "^localized: True" && break
+  sleep 0.5
+done
+sleep 20
+import -display "$display" -window root "$images/rviz_localization.png"
+rosservice call /localizer/get_info | grep -E "^(localized|fixes|fixes_held):" | sed 's/^/   /'
+echo "   $images/rviz_localization.png"
