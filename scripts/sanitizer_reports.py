@@ -42,18 +42,18 @@ def files_under(path):
     return sorted(os.path.join(d, f) for d, _, fs in os.walk(path) for f in fs)
 
 
+def texts_under(path):
+    for name in files_under(path):
+        with open(name, errors="replace") as f:
+            yield name, f.read()
+
+
 def main(root, outputs):
     defects, tools, unknown = [], [], []
-    for path in files_under(root):
-        with open(path, errors="replace") as f:
-            text = f.read()
+    for path, text in texts_under(root):
         {"defect": defects, "tool": tools, "unknown": unknown}[classify(text)].append((path, text))
     for output in outputs:
-        for path in files_under(output):
-            with open(path, errors="replace") as f:
-                text = f.read()
-            if DEFECT.search(text):
-                defects.append((path, text))
+        defects += [(path, text) for path, text in texts_under(output) if DEFECT.search(text)]
     for path, text in defects + unknown:
         first = next((l for l in text.splitlines() if DEFECT.search(l)), None)
         print(f"== {path}")

@@ -29,6 +29,7 @@
 #include <exception>
 #include <mutex>
 #include <stdexcept>
+#include <string>
 #include <thread>
 
 #include "ground_texture_bow/core/binary_io.h"
@@ -66,11 +67,15 @@ std::string ConvertHint(const std::string& source) {
          "directly any more; convert it once: gtbow convert-map --in " + source + " --out NEW_FILE";
 }
 
+// An environment variable's value, or `fallback` when it is unset (the save's measurement
+// switches, read once each).
+std::string EnvOr(const char* name, const char* fallback) {
+  const char* env = std::getenv(name);
+  return env != nullptr ? env : fallback;
+}
+
 bool IndexWriteBehind() {
-  static const bool on = [] {
-    const char* env = std::getenv("GTBOW_SAVE_WRITE_BEHIND");
-    return env == nullptr || std::string(env) != "0";
-  }();
+  static const bool on = EnvOr("GTBOW_SAVE_WRITE_BEHIND", "1") != "0";
   return on;
 }
 
@@ -134,19 +139,17 @@ void TouchPages(const char* data, size_t size) {
 // GTBOW_SAVE_IDLE=1: the writer at SCHED_IDLE and the idle I/O class instead, as tried in
 // December 2026, to measure the two side by side (bench-map).
 bool IdlePriorities() {
-  static const bool on = [] {
-    const char* env = std::getenv("GTBOW_SAVE_IDLE");
-    return env != nullptr && std::string(env) == "1";
-  }();
+  static const bool on = EnvOr("GTBOW_SAVE_IDLE", "0") == "1";
   return on;
 }
 
 // Runs `work` on a thread of its own at low priority (its own thread: an unprivileged process
 // can lower a thread's priority but not raise it back) and waits; its exception is rethrown
 // here. CPU: nice 19. Disk: the best-effort I/O class at its lowest level. Neither starves: a
-// save finishes on a robot whose cores and disk are kept busy (SCHED_IDLE and the idle I/O
-// class, tried in December 2026, could wait without end there, and a thread holding a lock at
-// SCHED_IDLE stalls every thread that waits for it). The work holds no lock of the Localizer's.
+// save finishes on a robot whose cores and disk are kept busy (the idle I/O class, tried in
+// December 2026, is served only when no other I/O waits, so a busy disk can hold it without end;
+// SCHED_IDLE gets a fifth of nice 19's share of a busy core). The work holds no lock of the
+// Localizer's.
 template <class Work>
 void RunAtLowPriority(Work&& work) {
   std::exception_ptr error;
