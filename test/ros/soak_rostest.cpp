@@ -66,7 +66,7 @@ class Client {
   ros::ServiceClient client_;
 };
 
-constexpr uint64_t kMinCalls = 10;     // calls of each read service, at least
+constexpr uint64_t kMinCalls = 10;      // calls of each read service, at least
 constexpr double kHungSeconds = 120.0;  // one call unanswered this long: a deadlock
 
 TEST(Soak, ReplayAtFourTimesRealTimeWithConcurrentServiceCalls) {
