@@ -101,6 +101,8 @@ const std::vector<Field>& Fields() {
   static const std::vector<Field> fields = {
       Enum("features", "type", &R::features, &F::type, &ParseFeatureType, &FeatureTypeName),
       Value("features", "num_features", &R::features, &F::num_features),
+      // Shapes no map: a map made without it loads with it.
+      Value("features", "query_num_features", &R::features, &F::query_num_features, false),
       Value("features", "orb_scale_factor", &R::features, &F::orb_scale_factor),
       Value("features", "orb_num_levels", &R::features, &F::orb_num_levels),
       Value("features", "orb_edge_threshold", &R::features, &F::orb_edge_threshold),
@@ -119,6 +121,12 @@ const std::vector<Field>& Fields() {
       Value("features", "grid_rows", &R::features, &F::grid_rows),
       Value("features", "grid_oversample", &R::features, &F::grid_oversample),
       Value("features", "grid_refill", &R::features, &F::grid_refill),
+      Value("features", "transient_median", &R::features, &F::transient_median),
+      Value("features", "transient_k", &R::features, &F::transient_k),
+      Value("features", "transient_grow", &R::features, &F::transient_grow),
+      Value("features", "transient_fill", &R::features, &F::transient_fill),
+      Enum("features", "transient_polarity", &R::features, &F::transient_polarity,
+           &ParseMarkPolarity, &MarkPolarityName),
       Value("features", "sift_octave_layers", &R::features, &F::sift_octave_layers),
       Value("features", "sift_contrast_threshold", &R::features, &F::sift_contrast_threshold),
       Value("features", "sift_edge_threshold", &R::features, &F::sift_edge_threshold),

@@ -1,6 +1,7 @@
 #include "ground_texture_bow/core/features.h"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <numeric>
 #include <stdexcept>
@@ -17,7 +18,15 @@ constexpr EnumName<FeatureType> kFeatureTypes[] = {{"orb", FeatureType::kOrb},
                                                    {"sift", FeatureType::kSift}};
 constexpr EnumName<Contrast> kContrasts[] = {
     {"none", Contrast::kNone}, {"normalize", Contrast::kNormalize}, {"clahe", Contrast::kClahe}};
+constexpr EnumName<MarkPolarity> kPolarities[] = {{"both", MarkPolarity::kBoth},
+                                                  {"bright", MarkPolarity::kBright},
+                                                  {"dark", MarkPolarity::kDark}};
 }  // namespace
+
+MarkPolarity ParseMarkPolarity(const std::string& name) {
+  return ParseEnumName(name, "transient polarity", kPolarities);
+}
+std::string MarkPolarityName(MarkPolarity p) { return EnumValueName(p, kPolarities); }
 
 FeatureType ParseFeatureType(const std::string& name) {
   return ParseEnumName(name, "feature type", kFeatureTypes);
@@ -30,7 +39,14 @@ std::string ContrastName(Contrast c) { return EnumValueName(c, kContrasts); }
 
 bool IsPlainExtractor(const FeatureOptions& o) {
   return o.contrast == Contrast::kNone && o.orb_min_fast_threshold == 0 && o.grid_cols == 0 &&
-         o.grid_rows == 0;
+         o.grid_rows == 0 && o.transient_median == 0;
+}
+
+FeatureOptions QueryFeatureOptions(const FeatureOptions& options) {
+  FeatureOptions q = options;
+  if (q.query_num_features > 0) q.num_features = q.query_num_features;
+  q.query_num_features = 0;
+  return q;
 }
 
 void FeatureOptions::Check() const {
@@ -38,6 +54,7 @@ void FeatureOptions::Check() const {
     if (!ok) throw std::invalid_argument(std::string("features: ") + what);
   };
   need(num_features > 0, "num_features must be positive");
+  need(query_num_features >= 0, "query_num_features must be >= 0 (0: num_features)");
   need(orb_scale_factor > 1.0f, "orb_scale_factor must be > 1");
   need(orb_num_levels >= 1 && orb_num_levels <= 32, "orb_num_levels must be in 1..32");
   need(orb_edge_threshold >= 0, "orb_edge_threshold must be >= 0");
@@ -57,8 +74,17 @@ void FeatureOptions::Check() const {
   need(grid_cols >= 0 && grid_cols <= 64 && grid_rows >= 0 && grid_rows <= 64,
        "grid_cols and grid_rows must be in 0..64");
   need(grid_oversample >= 1 && grid_oversample <= 16, "grid_oversample must be in [1, 16]");
+  need(transient_median == 0 ||
+           (transient_median >= 3 && transient_median <= 31 && transient_median % 2 == 1),
+       "transient_median must be 0 (off) or odd in 3..31");
+  need(transient_k > 0 && std::isfinite(transient_k), "transient_k must be positive");
+  need(transient_grow >= 0 && transient_grow <= 16, "transient_grow must be in 0..16");
+  need(transient_median == 0 ||
+           (transient_fill >= transient_median && transient_fill <= 63 && transient_fill % 2 == 1),
+       "transient_fill must be odd, at least transient_median and at most 63");
   need(type == FeatureType::kOrb || IsPlainExtractor(*this),
-       "contrast, orb_min_fast_threshold and the grid are implemented for ORB only");
+       "contrast, orb_min_fast_threshold, the grid and transient_median are implemented for ORB "
+       "only");
   need(sift_octave_layers >= 1, "sift_octave_layers must be >= 1");
   need(sift_contrast_threshold >= 0, "sift_contrast_threshold must be >= 0");
   need(sift_edge_threshold > 0, "sift_edge_threshold must be > 0");
@@ -235,6 +261,10 @@ ImageFeatures FeatureExtractor::Extract(const cv::Mat& gray) const {
 }
 
 cv::Mat FeatureExtractor::Preprocess(const cv::Mat& gray) const {
+  return AdaptContrast(RemoveTransients(gray));
+}
+
+cv::Mat FeatureExtractor::AdaptContrast(const cv::Mat& gray) const {
   switch (options_.contrast) {
     case Contrast::kNone:
       return gray;
@@ -274,6 +304,67 @@ cv::Mat FeatureExtractor::Preprocess(const cv::Mat& gray) const {
     }
   }
   return gray;
+}
+
+cv::Mat FeatureExtractor::RemoveTransients(const cv::Mat& gray) const {
+  if (options_.transient_median == 0) return gray;
+  cv::Mat median, deviation;
+  cv::medianBlur(gray, median, options_.transient_median);
+  cv::absdiff(gray, median, deviation);
+  // The robust deviation: the median of |image - median| from its histogram.
+  std::array<uint32_t, 256> hist{};
+  for (int r = 0; r < deviation.rows; ++r) {
+    const uint8_t* p = deviation.ptr<uint8_t>(r);
+    for (int c = 0; c < deviation.cols; ++c) ++hist[p[c]];
+  }
+  const size_t half = deviation.total() / 2;
+  size_t acc = 0;
+  int mad = 0;
+  while (mad < 255 && (acc += hist[mad]) <= half) ++mad;
+  // +0.5: an image without fine detail (mad 0) does not flag its sensor noise.
+  const double sigma = 1.4826 * mad + 0.5;
+  const double threshold = std::floor(options_.transient_k * sigma);
+  if (threshold >= 255) return gray;
+  cv::Mat marks;
+  if (options_.transient_polarity == MarkPolarity::kBright) {
+    cv::subtract(gray, median, deviation);  // saturating: brighter than the median only
+  } else if (options_.transient_polarity == MarkPolarity::kDark) {
+    cv::subtract(median, gray, deviation);
+  }
+  cv::threshold(deviation, marks, threshold, 255, cv::THRESH_BINARY);  // deviation > threshold
+  if (cv::countNonZero(marks) == 0) return gray;
+  if (options_.transient_grow > 0) {
+    const int side = 2 * options_.transient_grow + 1;
+    cv::dilate(marks, marks, cv::getStructuringElement(cv::MORPH_RECT, cv::Size(side, side)));
+  }
+  // The fill: the mean of the unmarked pixels of the transient_fill x transient_fill window,
+  // from integral images read at the marked pixels only; where the whole window is marked, the
+  // median.
+  cv::Mat keep, kept, sum, count;
+  cv::threshold(marks, keep, 0, 1, cv::THRESH_BINARY_INV);  // 1 where unmarked
+  cv::multiply(gray, keep, kept);
+  cv::integral(kept, sum, CV_32S);
+  cv::integral(keep, count, CV_32S);
+  const int reach = options_.transient_fill / 2;
+  cv::Mat out = gray.clone();
+  for (int r = 0; r < out.rows; ++r) {
+    const uint8_t* m = marks.ptr<uint8_t>(r);
+    const uint8_t* med = median.ptr<uint8_t>(r);
+    uint8_t* o = out.ptr<uint8_t>(r);
+    const int r0 = std::max(0, r - reach), r1 = std::min(out.rows, r + reach + 1);
+    const int32_t* s0 = sum.ptr<int32_t>(r0);
+    const int32_t* s1 = sum.ptr<int32_t>(r1);
+    const int32_t* n0 = count.ptr<int32_t>(r0);
+    const int32_t* n1 = count.ptr<int32_t>(r1);
+    for (int c = 0; c < out.cols; ++c) {
+      if (!m[c]) continue;
+      const int c0 = std::max(0, c - reach), c1 = std::min(out.cols, c + reach + 1);
+      const int32_t n = n1[c1] - n1[c0] - n0[c1] + n0[c0];
+      const int32_t total = s1[c1] - s1[c0] - s0[c1] + s0[c0];
+      o[c] = n > 0 ? static_cast<uint8_t>((total + n / 2) / n) : med[c];
+    }
+  }
+  return out;
 }
 
 }  // namespace gtbow

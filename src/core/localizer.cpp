@@ -93,14 +93,16 @@ ImageGeometry Localizer::GeometryOf(int width, int height) const {
   return {width, height, meters_per_pixel()};
 }
 
-ProcessedImage Localizer::Process(const cv::Mat& gray) const {
+ProcessedImage Localizer::Process(const cv::Mat& gray, ImageUse use) const {
   if (gray.empty()) throw std::invalid_argument("empty image");
   if (gray.type() != CV_8UC1) {
     throw std::invalid_argument("expected an 8-bit single-channel image");
   }
   CheckImageSize(gray.cols, gray.rows);
   // One extractor per call: OpenCV's detectors are not documented as safe to share.
-  const FeatureExtractor extractor(options_.retrieval.features);
+  const FeatureExtractor extractor(use == ImageUse::kQuery
+                                       ? QueryFeatureOptions(options_.retrieval.features)
+                                       : options_.retrieval.features);
   return Encode(extractor.Extract(gray), gray.cols, gray.rows);
 }
 
@@ -121,6 +123,13 @@ uint32_t Localizer::Add(const ProcessedImage& image, int64_t stamp_ns,
   }
   if (image.features.size() > kMaxKeypoints) {
     throw std::invalid_argument("more than 65536 keypoints in one image");
+  }
+  if (image.features.size() > static_cast<size_t>(options_.retrieval.features.num_features)) {
+    throw std::invalid_argument(
+        "a keyframe with " + std::to_string(image.features.size()) +
+        " keypoints, more than features.num_features " +
+        std::to_string(options_.retrieval.features.num_features) +
+        " (an image processed as a query: process it as a keyframe to add it)");
   }
   CheckImageSize(image.width, image.height);
   const cv::Mat& d = image.features.descriptors;

@@ -539,7 +539,10 @@ void LocalizerServer::ProcessImage(const Pending& msg) {
       pose = LookupFootprint(header.frame_id, header.stamp, options_.map_frame, true);
     }
   }
-  const gtbow::ProcessedImage img = localizer_->Process(floor_image);
+  // Localization mode only queries (features.query_num_features); mapping adds the image.
+  const gtbow::ProcessedImage img = localizer_->Process(
+      floor_image, mode == Mode::kLocalization ? gtbow::Localizer::ImageUse::kQuery
+                                               : gtbow::Localizer::ImageUse::kKeyframe);
   std::vector<gtbow::Vec2> inliers;
   std::string caption = "no verified match";
   if (mode == Mode::kLocalization) {

@@ -50,7 +50,9 @@ bool LocalizerServer::OnQueryCandidates(ground_texture_bow::QueryCandidates::Req
       cands = localizer_->QueryKeyframe(req.keyframe_id, k, req.verify);
     } else {
       RequireScale();
-      cands = localizer_->Query(localizer_->Process(ToFloorImage(req.image)), k, req.verify);
+      cands = localizer_->Query(
+          localizer_->Process(ToFloorImage(req.image), gtbow::Localizer::ImageUse::kQuery), k,
+          req.verify);
     }
     for (const auto& c : cands) res.candidates.push_back(ToCandidateMsg(c));
     return MakeStatus(Status::OK, std::to_string(cands.size()) + " candidates");
@@ -81,8 +83,8 @@ bool LocalizerServer::OnLocalize(ground_texture_bow::Localize::Request& req,
                                  ground_texture_bow::Localize::Response& res) {
   res.status = Serve("localize", false, [&] {
     RequireScale();
-    const gtbow::Localization fix =
-        localizer_->Localize(localizer_->Process(ToFloorImage(req.image)));
+    const gtbow::Localization fix = localizer_->Localize(
+        localizer_->Process(ToFloorImage(req.image), gtbow::Localizer::ImageUse::kQuery));
     res.localized = fix.success;
     if (!fix.success) return MakeStatus(Status::NOT_FOUND, fix.reason);
     res.pose =

@@ -137,7 +137,8 @@ void Localize(const LocalizeArgs& a) {
   std::vector<double> errors;
   ProgressBar bar("localize", names.size(), !a.quiet);
   for (const std::string& n : names) {
-    const Localization fix = loc->Localize(loc->Process(ds.LoadGray(n)));
+    const Localization fix =
+        loc->Localize(loc->Process(ds.LoadGray(n), Localizer::ImageUse::kQuery));
     char line[256];
     if (!fix.success) {
       csv += n + ",0,,,,,,,\n";

@@ -192,5 +192,103 @@ TEST(Features, AnAdaptiveThresholdFindsKeypointsOnAFaintFloor) {
   EXPECT_THROW(FeatureExtractor{half}, std::invalid_argument);
 }
 
+// Transient marks (issue 28): debris dots and thin scuffs on a faint floor are the strongest
+// corners, and the transient step fills them with the floor's local median before detection.
+TEST(Features, TransientMarksAreFilledAndKeypointsLeaveThem) {
+  const cv::Mat floor = Faint(Asphalt(), 0.15);
+  cv::Mat marked = floor.clone(), where = cv::Mat::zeros(floor.size(), CV_8U);
+  cv::RNG rng(7);
+  for (int i = 0; i < 120; ++i) {  // debris: dots of radius 1 to 2.5 px, dark or bright
+    const cv::Point c(rng.uniform(20, floor.cols - 20), rng.uniform(20, floor.rows - 20));
+    const int r = rng.uniform(1, 3);
+    const int v = rng.uniform(0, 2) ? 235 : 20;
+    cv::circle(marked, c, r, v, cv::FILLED);
+    cv::circle(where, c, r, 255, cv::FILLED);
+  }
+  for (int i = 0; i < 12; ++i) {  // scuffs: lines 1-2 px wide, 20-80 px long
+    const cv::Point a(rng.uniform(20, floor.cols - 100), rng.uniform(20, floor.rows - 100));
+    const cv::Point b = a + cv::Point(rng.uniform(20, 80), rng.uniform(-20, 80));
+    const int v = rng.uniform(0, 2) ? 220 : 35, w = rng.uniform(1, 3);
+    cv::line(marked, a, b, v, w);
+    cv::line(where, a, b, 255, w);
+  }
+  FeatureOptions o;  // the presets' extractor: CLAHE and a 4 x 3 grid
+  o.contrast = Contrast::kClahe;
+  o.grid_cols = 4;
+  o.grid_rows = 3;
+  FeatureOptions t = o;
+  t.transient_median = 7;
+  const FeatureExtractor plain(o), transient(t);
+  // Off: the image as it was.
+  EXPECT_EQ(cv::norm(plain.RemoveTransients(marked), marked, cv::NORM_INF), 0.0);
+  // The marks' pixels come back near the clean floor; the rest of the floor is hardly touched.
+  const cv::Mat filled = transient.RemoveTransients(marked);
+  cv::Mat err_before, err_after;
+  cv::absdiff(marked, floor, err_before);
+  cv::absdiff(filled, floor, err_after);
+  const double before = cv::mean(err_before, where)[0], after = cv::mean(err_after, where)[0];
+  cv::Mat rest;
+  cv::dilate(where, rest, cv::Mat::ones(7, 7, CV_8U));
+  cv::bitwise_not(rest, rest);
+  cv::Mat changed;
+  cv::compare(transient.RemoveTransients(floor), floor, changed, cv::CMP_NE);
+  const double changed_clean = cv::countNonZero(changed) / static_cast<double>(floor.total());
+  cv::compare(filled, marked, changed, cv::CMP_NE);
+  const double changed_rest =
+      cv::countNonZero(changed & rest) / static_cast<double>(cv::countNonZero(rest));
+  std::printf(
+      "transient marks: error on the marks %.1f -> %.1f grey levels; pixels changed: %.2f%% of "
+      "the unmarked floor, %.2f%% of the clean one\n",
+      before, after, 100 * changed_rest, 100 * changed_clean);
+  EXPECT_LT(after, 0.2 * before);
+  EXPECT_LT(changed_rest, 0.05);
+  EXPECT_LT(changed_clean, 0.05);
+  // Keypoints on or beside a mark: most of plain ORB's, few with the marks filled.
+  auto on_marks = [&](const ImageFeatures& f) {
+    cv::Mat near;
+    cv::dilate(where, near, cv::Mat::ones(7, 7, CV_8U));
+    size_t n = 0;
+    for (const auto& k : f.keypoints) {
+      n += near.at<uint8_t>(cvRound(k.y), cvRound(k.x)) ? 1 : 0;
+    }
+    return static_cast<double>(n) / std::max<size_t>(1, f.size());
+  };
+  const ImageFeatures fp = plain.Extract(marked), ft = transient.Extract(marked);
+  std::printf(
+      "keypoints within 3 px of a mark: %.0f%% of %zu, with the marks filled %.0f%% of %zu\n",
+      100 * on_marks(fp), fp.size(), 100 * on_marks(ft), ft.size());
+  EXPECT_GT(on_marks(fp), 0.4);
+  EXPECT_LT(on_marks(ft), 0.5 * on_marks(fp));
+  EXPECT_EQ(ft.size(), 250u);
+  // Bright marks only: the dark ones stay as they were, the bright ones are filled.
+  FeatureOptions b = t;
+  b.transient_polarity = MarkPolarity::kBright;
+  const cv::Mat bright_filled = FeatureExtractor(b).RemoveTransients(marked);
+  cv::Mat dark_marks, bright_marks;
+  cv::compare(marked, 60, dark_marks, cv::CMP_LT);
+  cv::compare(marked, 200, bright_marks, cv::CMP_GT);
+  dark_marks &= where;
+  bright_marks &= where;
+  cv::Mat err, dark_changed;
+  cv::compare(bright_filled, marked, dark_changed, cv::CMP_NE);
+  dark_changed &= dark_marks;
+  // (only where a grown bright mark touches a dark one)
+  EXPECT_LT(cv::countNonZero(dark_changed), cv::countNonZero(dark_marks) / 10);
+  cv::absdiff(bright_filled, floor, err);
+  EXPECT_LT(cv::mean(err, bright_marks)[0], 0.2 * cv::mean(err_before, bright_marks)[0]);
+  // An even window, and a fill smaller than the window, are refused.
+  FeatureOptions bad = t;
+  bad.transient_median = 6;
+  EXPECT_THROW(FeatureExtractor{bad}, std::invalid_argument);
+  bad = t;
+  bad.transient_fill = 5;
+  EXPECT_THROW(FeatureExtractor{bad}, std::invalid_argument);
+  // An image only queried takes query_num_features keypoints.
+  FeatureOptions q = o;
+  q.query_num_features = 500;
+  EXPECT_EQ(FeatureExtractor(QueryFeatureOptions(q)).Extract(marked).size(), 500u);
+  EXPECT_EQ(FeatureExtractor(q).Extract(marked).size(), 250u);
+}
+
 }  // namespace
 }  // namespace gtbow

@@ -792,8 +792,9 @@ TEST_F(LocalizerFiles, EveryKeyOfThePresetGuardsTheMap) {
       {"vocabulary.kind", {"bow.soft_assignment: 1"}},
       {"bow.scoring", {"bow.orientation_verification: false"}}};
   const std::vector<std::string> names = {
-      "orb", "sift",  "none", "normalize", "clahe",      "akm", "hkm",     "l2_bytes", "hamming",
-      "l2",  "flann", "ivf",  "octave",    "percentile", "dot", "dbow_l1", "global",   "per_bin"};
+      "orb",      "sift",    "none",   "normalize", "clahe", "akm",    "hkm",
+      "l2_bytes", "hamming", "l2",     "flann",     "ivf",   "octave", "percentile",
+      "dot",      "dbow_l1", "global", "per_bin",   "both",  "bright", "dark"};
   // The text with `section.key` set to `value`.
   auto with = [](std::string text, const std::string& dotted, const std::string& value) {
     const std::string section = dotted.substr(0, dotted.find('.')) + ":\n";
@@ -863,6 +864,39 @@ TEST_F(LocalizerFiles, EveryKeyOfThePresetGuardsTheMap) {
     ++checked;
   }
   EXPECT_EQ(checked, static_cast<int>(RetrievalConfigKeys().size()));
+}
+
+// Issue 28: an image that is only queried is extracted with query_num_features keypoints; it
+// localizes on a map of 250-keypoint keyframes, and cannot be added as a keyframe by mistake.
+TEST(Localizer, QueriesTakeMoreKeypointsThanKeyframes) {
+  const Scene& s = TheScene();
+  LocalizerOptions o = Options();
+  o.retrieval.features.query_num_features = 500;
+  Localizer loc(s.vocabulary, "test.gtvoc", o);
+  for (size_t i = 0; i < s.db_images.size(); ++i) {
+    loc.Add(loc.Process(s.db_images[i]), static_cast<int64_t>(i), s.db_poses[i]);
+  }
+  const ProcessedImage keyframe = loc.Process(s.revisits[0]);
+  const ProcessedImage query = loc.Process(s.revisits[0], Localizer::ImageUse::kQuery);
+  EXPECT_LE(keyframe.features.size(), 250u);
+  EXPECT_GT(query.features.size(), 400u);
+  EXPECT_LE(query.features.size(), 500u);
+  for (size_t q = 0; q < s.revisits.size(); ++q) {
+    const Localization fix = loc.Localize(loc.Process(s.revisits[q], Localizer::ImageUse::kQuery));
+    ASSERT_TRUE(fix.success) << fix.reason;
+    const Pose2D& t = s.revisit_poses[q];
+    EXPECT_LT(1000 * std::hypot(fix.estimate.floor_from_query.x - t.x,
+                                fix.estimate.floor_from_query.y - t.y),
+              4.8);
+  }
+  try {
+    loc.Add(query, 1, std::nullopt);
+    ADD_FAILURE() << "a query's 500 keypoints were added as a keyframe";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("processed as a query"), std::string::npos) << e.what();
+  }
+  // Not recorded in the map: a map saved without it loads with it.
+  EXPECT_EQ(FormatRetrievalConfig(o.retrieval), FormatRetrievalConfig(Options().retrieval));
 }
 
 TEST(Localizer, BadImagesAndPosesGetClearErrors) {

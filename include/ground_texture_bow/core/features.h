@@ -27,9 +27,21 @@ enum class Contrast { kNone, kNormalize, kClahe };
 Contrast ParseContrast(const std::string& name);  // "none", "normalize" or "clahe"
 std::string ContrastName(Contrast contrast);
 
+// Which transient marks are filled: both polarities, or only those brighter (dust, grit,
+// scratches on a sealed floor) or darker than the floor around them.
+enum class MarkPolarity { kBoth, kBright, kDark };
+MarkPolarity ParseMarkPolarity(const std::string& name);  // "both", "bright" or "dark"
+std::string MarkPolarityName(MarkPolarity polarity);
+
 struct FeatureOptions {
   FeatureType type = FeatureType::kOrb;  // detector and descriptor
   int num_features = 250;                // keypoints kept per image (paper: 250)
+  // Keypoints of an image that is only queried (localization), not added to the map; 0: the
+  // same as num_features. The map's memory is unchanged; on a floor that has changed, the
+  // marks that came since (debris, scuffs) take the strongest places, and more keypoints keep
+  // room for the floor that lasted (issue 28). Not recorded in maps: a map made without it
+  // loads with it.
+  int query_num_features = 0;
   // ORB (cv::ORB); the defaults are the paper's (8 levels at scale 1.2).
   float orb_scale_factor = 1.2f;  // pyramid scale step
   int orb_num_levels = 8;         // pyramid levels
@@ -59,6 +71,20 @@ struct FeatureOptions {
   // (masked, at the lowest FAST threshold). Off in the presets: it cost accuracy and doubled
   // extraction time on the real-floor benchmark (docs/RESULTS.md).
   bool grid_refill = false;
+  // Transient marks (issue 28): debris, scuffs and the like come and go, and on a faint floor
+  // they are the strongest corners of an image, outvoting the floor that lasts. Before the
+  // contrast step, a pixel further than `transient_k` robust deviations (1.4826 x the image's
+  // median absolute difference) from the median of its `transient_median` x `transient_median`
+  // neighbourhood is taken for a mark (of `transient_polarity`: brighter, darker or either);
+  // the marks, grown by `transient_grow` pixels, take the mean of the unmarked pixels of the
+  // `transient_fill` x `transient_fill` window. Small, strong marks go; a floor's own texture,
+  // within a few deviations of its neighbourhood, stays. 0: off (the paper). OpenCV's median
+  // is fast for 3 and 5 only.
+  int transient_median = 0;  // odd, 3..31, or 0 (off)
+  double transient_k = 7.0;  // threshold, robust deviations
+  int transient_grow = 1;    // pixels
+  int transient_fill = 11;   // odd, >= transient_median
+  MarkPolarity transient_polarity = MarkPolarity::kBoth;
   // SIFT (cv::SIFT).
   int sift_octave_layers = 3;             // layers per octave
   double sift_contrast_threshold = 0.04;  // DoG contrast threshold
@@ -101,10 +127,15 @@ class FeatureExtractor {
   ImageFeatures Extract(const cv::Mat& gray) const;
 
   const FeatureOptions& options() const { return options_; }
-  // The image the detector and descriptor see (after contrast adaptation).
+  // The image the detector and descriptor see (after transient removal and contrast
+  // adaptation).
   cv::Mat Preprocess(const cv::Mat& gray) const;
+  // The image with its transient marks filled by the local median (transient_median; the image
+  // itself when off or when it has none).
+  cv::Mat RemoveTransients(const cv::Mat& gray) const;
 
  private:
+  cv::Mat AdaptContrast(const cv::Mat& gray) const;
   FeatureOptions options_;
   cv::Ptr<cv::Feature2D> detector_;
   // ORB adaptation: detectors at the FAST thresholds tried in turn (first: orb_fast_threshold),
@@ -115,5 +146,9 @@ class FeatureExtractor {
 
 // True when the options make the paper's plain ORB or SIFT (no adaptation to the floor).
 bool IsPlainExtractor(const FeatureOptions& options);
+
+// The options an image that is only queried is extracted with: num_features becomes
+// query_num_features when that is set.
+FeatureOptions QueryFeatureOptions(const FeatureOptions& options);
 
 }  // namespace gtbow

@@ -160,10 +160,14 @@ class Localizer {
   static constexpr int kMinImageSide = 32;
   static constexpr int kMaxImagePixels = 64000000;
 
+  // What an image is processed for: a keyframe (mapping: it is queried, then added), or a
+  // query alone (localization, the query services), extracted with
+  // features.query_num_features keypoints when that is set.
+  enum class ImageUse { kKeyframe, kQuery };
   // Extracts features and encodes them. Throws std::invalid_argument for an empty image, one
   // that is not 8-bit single-channel, or one outside the sizes above; an image without
   // features gives an empty vector.
-  ProcessedImage Process(const cv::Mat& gray) const;
+  ProcessedImage Process(const cv::Mat& gray, ImageUse use = ImageUse::kKeyframe) const;
   // The same for features extracted elsewhere (a feature cache): encodes them for an image of
   // width x height pixels. Throws std::invalid_argument for sizes Process refuses.
   ProcessedImage Encode(ImageFeatures features, int width, int height) const;
