@@ -239,11 +239,15 @@ REAL_PRESETS = ["high_accuracy", "fast", "paper_literal", "paper_literal_fast", 
                 "ablation/authors/ours_plain_orb", "dbow_baseline", "ablation/features/clahe_only",
                 "ablation/features/grid_only", "ablation/features/normalize_grid",
                 "ablation/features/adaptive_threshold", "ablation/features/grid_refill",
-                "ablation/features/dense_400"]
+                "ablation/features/dense_400", "changing_floors", "ablation/changing/query_only",
+                "ablation/changing/transient_only", "ablation/changing/both_polarities",
+                "ablation/changing/six_inliers"]
+CHANGING_LC = ["changing_floors", "ablation/changing/query_only", "ablation/changing/transient_only",
+               "ablation/changing/both_polarities"]
 
 
 def real_results(photos=PHOTOS, presets=REAL_PRESETS, plain_smooth=0.05, ha_smooth=0.95, ha_map=0.85,
-                 drop=None):
+                 drop=None, cf_oldest=0.95, cf_wrong=0):
     out = []
     for name in presets:
         splits = []
@@ -257,7 +261,11 @@ def real_results(photos=PHOTOS, presets=REAL_PRESETS, plain_smooth=0.05, ha_smoo
                     l = ha_smooth if ph in SMOOTH and d == 0 else (0.2 if d == 180 else 1.0)
                 if name == "paper_literal" and ph in SMOOTH and d == 0:
                     l = plain_smooth
-                splits.append(split("query_day%03d_%s" % (d, ph), d, loc=l, mapv=m))
+                wrong = 0
+                if name == "changing_floors":
+                    l = cf_oldest if d == 180 else 1.0
+                    wrong = cf_wrong if (ph, d) == (PHOTOS[0], 0) else 0
+                splits.append(split("query_day%03d_%s" % (d, ph), d, loc=l, mapv=m, wrong=wrong))
         f = "/x/config/%s.yaml" % name
         out.append(preset(name.split("/")[-1], splits, file=f))
     return {"dataset": {"path": "/x/real"}, "presets": out}
@@ -265,7 +273,7 @@ def real_results(photos=PHOTOS, presets=REAL_PRESETS, plain_smooth=0.05, ha_smoo
 
 def low_contrast(surface, ha0=0.97):
     ps = []
-    for name in ("high_accuracy", "fast", "paper_literal", "authors"):
+    for name in ["high_accuracy", "fast", "paper_literal", "authors"] + CHANGING_LC:
         l = ha0 if name == "high_accuracy" else 0.5
         ps.append(preset(name, [split("query_day000", 0, loc=l, queries=30),
                                 split("query_day180", 180, loc=0.1, queries=30)], file="/x/config/%s.yaml" % name))
@@ -287,6 +295,21 @@ class Real(Base):
         self.expect(OK, "write_real_results.py", ins[0], self.docs, *ins[1:])
         text = self.section("real")
         self.assertIn("plain ORB", text)
+        self.assertIn("Floors that change", text)
+        # The held-out photographs, when given, get their table.
+        held = dump(os.path.join(self.dir, "heldout", "results.json"),
+                    real_results(photos=PHOTOS[:2], presets=["high_accuracy", "changing_floors",
+                                                              "ablation/changing/six_inliers"]))
+        self.expect(OK, "write_real_results.py", "--heldout", held, ins[0], self.docs, *ins[1:])
+        self.assertIn("Held-out photographs", self.section("real"))
+
+    def test_changing_floors_oldest_day_missed(self):
+        self.expect(MISSED, "write_real_results.py", "--check", *self.inputs(real_results(cf_oldest=0.5)),
+                    why="changing_floors, day-180 localization, mean of the surfaces")
+
+    def test_changing_floors_wrong_pose(self):
+        self.expect(MISSED, "write_real_results.py", "--check", *self.inputs(real_results(cf_wrong=1)),
+                    why="changing_floors, wrong verified poses")
 
     def test_surface_missing(self):
         self.expect(MISSING, "write_real_results.py", "--check", *self.inputs(real_results(photos=PHOTOS[:-1])), why="10 surfaces")
