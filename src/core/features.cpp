@@ -21,6 +21,14 @@ constexpr EnumName<Contrast> kContrasts[] = {
 constexpr EnumName<MarkPolarity> kPolarities[] = {{"both", MarkPolarity::kBoth},
                                                   {"bright", MarkPolarity::kBright},
                                                   {"dark", MarkPolarity::kDark}};
+// The bin holding the median of a histogram's `total` samples (the robust deviations below).
+int MedianBin(const uint32_t* hist, int bins, size_t total) {
+  const size_t half = total / 2;
+  size_t acc = 0;
+  int bin = 0;
+  while (bin < bins - 1 && (acc += hist[bin]) <= half) ++bin;
+  return bin;
+}
 }  // namespace
 
 MarkPolarity ParseMarkPolarity(const std::string& name) {
@@ -283,10 +291,7 @@ cv::Mat FeatureExtractor::AdaptContrast(const cv::Mat& gray) const {
         for (int c = 0; c < hp.cols; ++c)
           ++hist[std::min(kBins - 1, static_cast<int>(p[c] * 8.0f))];
       }
-      const size_t half = hp.total() / 2;
-      size_t acc = 0;
-      int bin = 0;
-      while (bin < kBins - 1 && (acc += hist[bin]) <= half) ++bin;
+      const int bin = MedianBin(hist.data(), kBins, hp.total());
       const double sd = 1.4826 * (bin + 0.5) / 8.0;
       const double gain = std::clamp(options_.contrast_target / std::max(sd, 1e-6), 1.0,
                                      options_.contrast_max_gain);
@@ -317,10 +322,7 @@ cv::Mat FeatureExtractor::RemoveTransients(const cv::Mat& gray) const {
     const uint8_t* p = deviation.ptr<uint8_t>(r);
     for (int c = 0; c < deviation.cols; ++c) ++hist[p[c]];
   }
-  const size_t half = deviation.total() / 2;
-  size_t acc = 0;
-  int mad = 0;
-  while (mad < 255 && (acc += hist[mad]) <= half) ++mad;
+  const int mad = MedianBin(hist.data(), 256, deviation.total());
   // +0.5: an image without fine detail (mad 0) does not flag its sensor noise.
   const double sigma = 1.4826 * mad + 0.5;
   const double threshold = std::floor(options_.transient_k * sigma);

@@ -310,8 +310,7 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
   // A localization query is extracted with the query options (query_num_features); the
   // insertion is timed with the image extracted as a keyframe.
   const FeatureExtractor fx(c.features), fxq(QueryFeatureOptions(c.features));
-  const bool query_differs =
-      c.features.query_num_features > 0 && c.features.query_num_features != c.features.num_features;
+  const bool query_differs = fxq.options().num_features != c.features.num_features;
   struct Samples {
     std::vector<double> ex, tr, in, qu, po, to;
   };

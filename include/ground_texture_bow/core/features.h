@@ -130,8 +130,8 @@ class FeatureExtractor {
   // The image the detector and descriptor see (after transient removal and contrast
   // adaptation).
   cv::Mat Preprocess(const cv::Mat& gray) const;
-  // The image with its transient marks filled by the local median (transient_median; the image
-  // itself when off or when it has none).
+  // The image with its transient marks filled by the mean of the unmarked pixels around them
+  // (transient_median; the image itself when off or when it has none).
   cv::Mat RemoveTransients(const cv::Mat& gray) const;
 
  private:
