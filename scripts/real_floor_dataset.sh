@@ -6,7 +6,8 @@
 # With `heldout`: the photos the benchmark neither maps nor trains on (issue 28), plaster1
 # (a training photo above) among them as a map, the vocabulary trained on the other seven.
 # REAL_SEED (default 1) renders other query poses, ageing and debris (RESULTS.md: the spread
-# over renderings).
+# over renderings). REAL_TRAIL=N gives each query a trail of N images before it (sequence
+# queries: gtbow synth --query-trail; the queries themselves are the same).
 # Usage: real_floor_dataset.sh GTBOW PHOTO_DIR DATA_DIR [heldout]
 set -euo pipefail
 gtbow="$1"; photos="$2"; data="$3"; which="${4:-benchmark}"
@@ -32,4 +33,4 @@ args=()
 for f in "${map[@]}"; do args+=(--photo "$photos/$f"); done
 for f in "${train[@]}"; do [ -n "$f" ] && args+=(--train-photo "$photos/$f"); done
 "$gtbow" synth --out "$data" --force "${args[@]}" --width 320 --height 240 --meters-per-pixel 0.0005 \
-  --queries 40 --days 0,180 --train 300 --seed "${REAL_SEED:-1}" -q
+  --queries 40 --days 0,180 --train 300 --seed "${REAL_SEED:-1}" ${REAL_TRAIL:+--query-trail "$REAL_TRAIL"} -q

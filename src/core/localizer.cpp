@@ -1,11 +1,15 @@
 #include "ground_texture_bow/core/localizer.h"
 
+#include <algorithm>
 #include <cmath>
+#include <cstdlib>
 #include <cstring>
 #include <mutex>
 #include <stdexcept>
 
 #include "ground_texture_bow/core/binary_io.h"
+#include "ground_texture_bow/core/file_util.h"
+#include "ground_texture_bow/core/sequence.h"
 #include "keyframe_store.h"
 
 namespace gtbow {
@@ -114,6 +118,23 @@ ProcessedImage Localizer::Encode(ImageFeatures features, int width, int height) 
   p.width = width;
   p.height = height;
   return p;
+}
+
+ProcessedImage Localizer::Combine(const std::vector<const ProcessedImage*>& images,
+                                  const std::vector<Pose2D>& poses) const {
+  if (images.empty()) throw std::invalid_argument("a sequence query needs at least one image");
+  std::vector<const ImageFeatures*> views;
+  for (const ProcessedImage* im : images) {
+    if (im->width != images[0]->width || im->height != images[0]->height) {
+      throw std::invalid_argument("a sequence query's images differ in size (" +
+                                  std::to_string(im->width) + " x " + std::to_string(im->height) +
+                                  " and " + std::to_string(images[0]->width) + " x " +
+                                  std::to_string(images[0]->height) + ")");
+    }
+    views.push_back(&im->features);
+  }
+  const ImageGeometry g = GeometryOf(images[0]->width, images[0]->height);
+  return Encode(CombineViews(views, poses, g), g.width, g.height);
 }
 
 uint32_t Localizer::Add(const ProcessedImage& image, int64_t stamp_ns,
@@ -249,6 +270,19 @@ std::string Localizer::Damaged(uint32_t id) const {
   return "";
 }
 
+// GTBOW_PREFETCH_PAYLOADS=0 turns the prefetch off, for side-by-side measurements (bench-map).
+void Localizer::PrefetchPayloads(const std::vector<QueryResult>& results, size_t n) const {
+  static const bool on = [] {
+    const char* v = std::getenv("GTBOW_PREFETCH_PAYLOADS");
+    return v == nullptr || std::string(v) != "0";
+  }();
+  if (!on) return;
+  for (size_t i = 0; i < std::min(n, results.size()); ++i) {
+    const detail::KeyframeView v = View(results[i].image);
+    if (v.verify) AdviseWillNeed(v.payload, v.payload_bytes);
+  }
+}
+
 MapAccess Localizer::RelativeAccess() const {
   MapAccess map;
   map.keypoints = [this](uint32_t id) { return detail::PayloadKeypoints(View(id)); };
@@ -266,6 +300,7 @@ std::vector<Candidate> Localizer::QueryLocked(const BowVector& bow, int width, i
   if (bow.source.empty() || k == 0) return out;
   const size_t excluded = exclude_to > exclude_from ? exclude_to - exclude_from : 0;
   const auto results = database_->Query(bow, k + excluded, verify);
+  if (verify) PrefetchPayloads(results, k + excluded);
   for (const QueryResult& r : results) {
     if (r.image >= exclude_from && r.image < exclude_to) continue;
     const detail::KeyframeRecord& kf = *View(r.image).record;
@@ -352,6 +387,7 @@ Localization Localizer::Localize(const ProcessedImage& image) const {
   };
   const auto results =
       database_->Query(image.bow, static_cast<size_t>(verification_.candidates), true);
+  PrefetchPayloads(results, results.size());
   return VerifyCandidates(results, image.bow, map, GeometryOf(image.width, image.height),
                           verification_);
 }

@@ -27,6 +27,7 @@ LocalizerServer::LocalizerServer(ros::NodeHandle nh, ros::NodeHandle pnh,
       it_(nh),
       updater_(nh, pnh, pnh.getNamespace()),  // named after this nodelet, not its manager
       mode_(options.mode),
+      sequence_(options.sequence),
       gate_(options.gate) {
   options_.Check();
   std::string vocab_path = options_.vocabulary;
@@ -546,8 +547,20 @@ void LocalizerServer::ProcessImage(const Pending& msg) {
   std::vector<gtbow::Vec2> inliers;
   std::string caption = "no verified match";
   if (mode == Mode::kLocalization) {
-    const gtbow::Localization fix = localizer_->Localize(img);
     const std::optional<gtbow::Pose2D> odom = LookupOdometry(header);
+    gtbow::Localization fix;
+    if (sequence_.options().length > 1) {
+      // With the images just before it, related by odometry (core/sequence.h).
+      sequence_.Push(img, odom);
+      if (sequence_.size() > 1) {
+        sequence_queries_++;
+        fix = localizer_->Localize(localizer_->Combine(sequence_.images(), sequence_.poses()));
+      } else {
+        fix = localizer_->Localize(img);
+      }
+    } else {
+      fix = localizer_->Localize(img);
+    }
     if (fix.success) {
       // The gate (core/odometry_gate.h) decides whether the fix may be published and move
       // map -> odom; without odometry there is nothing to check it against.
@@ -742,6 +755,7 @@ void LocalizerServer::Diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat
   stat.add("loop closures held (temporal consistency)", held_closures_.load());
   stat.add("fixes held (odometry gate)", held_fixes_.load());
   stat.add("relocalizations", relocalizations_.load());
+  stat.add("sequence_queries", sequence_queries_.load());
   stat.add("images rectified", rectified_.load());
   stat.add("pose frame", localizer_->pose_frame() +
                              (localizer_->poses_optimised() ? " (optimised by a backend)" : ""));

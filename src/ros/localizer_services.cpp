@@ -170,6 +170,7 @@ bool LocalizerServer::OnGetInfo(ground_texture_bow::GetInfo::Request&,
     res.loop_closures = loop_closures_.load();
     res.fixes_held = held_fixes_.load();
     res.relocalizations = relocalizations_.load();
+    res.sequence_queries = sequence_queries_.load();
     res.meters_per_pixel = scale_known_ ? localizer_->meters_per_pixel() : 0.0;
     res.pose_frame = localizer_->pose_frame();
     res.poses_optimised = localizer_->poses_optimised();

@@ -75,6 +75,7 @@ void ServerOptions::Check() const {
   }
   try {
     gate.Check();
+    sequence.Check();
   } catch (const std::invalid_argument& e) {
     throw std::invalid_argument(std::string("parameter ~") + e.what());
   }
@@ -121,6 +122,8 @@ ServerOptions ReadOptions(const ros::NodeHandle& pnh) {
   pnh.param("gate_distance_drift", o.gate.distance_drift, o.gate.distance_drift);
   pnh.param("gate_angle_drift", o.gate.angle_drift, o.gate.angle_drift);
   pnh.param("relocalize_after", o.gate.relocalize_after, o.gate.relocalize_after);
+  pnh.param("sequence_length", o.sequence.length, o.sequence.length);
+  pnh.param("sequence_max_span", o.sequence.max_span, o.sequence.max_span);
   pnh.param("diagnostics_window", o.diagnostics_window, o.diagnostics_window);
   pnh.param("autosave_path", o.autosave_path, o.autosave_path);
   pnh.param("autosave_period", o.autosave_period, o.autosave_period);

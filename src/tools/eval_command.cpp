@@ -10,6 +10,7 @@
 #include <cstdio>
 #include <fstream>
 #include <iomanip>
+#include <map>
 #include <memory>
 #include <mutex>
 #include <random>
@@ -27,6 +28,7 @@
 #include "ground_texture_bow/core/parallel.h"
 #include "ground_texture_bow/core/pose.h"
 #include "ground_texture_bow/core/progress.h"
+#include "ground_texture_bow/core/sequence.h"
 #include "ground_texture_bow/core/simd.h"
 #include "ground_texture_bow/eval/metrics.h"
 #include "image_source.h"
@@ -72,6 +74,71 @@ std::unique_ptr<Vocabulary> GetVocabulary(const EvalArgs& a, const RetrievalConf
   return DatasetVocabulary(r, c, desc);
 }
 
+// --sequence: the trail of each query (split trail_X of query split query_X, the nearest
+// sequence - 1 images, with trail_X_odometry.csv), to combine with the query's own features as
+// the node's Localizer::Combine does (CombineViews).
+struct QueryTrails {
+  std::vector<std::vector<ImageFeatures>> views;  // per query, nearest first
+  std::vector<std::vector<Pose2D>> poses;         // per query: the query's (origin), then theirs
+  ImageFeatures Combine(const ImageFeatures& query, size_t qi, const ImageGeometry& g) const {
+    std::vector<const ImageFeatures*> all{&query};
+    for (const ImageFeatures& v : views[qi]) all.push_back(&v);
+    return CombineViews(all, poses[qi], g);
+  }
+};
+
+QueryTrails ReadTrails(const EvalArgs& a, const Dataset& ds, const std::string& split,
+                       const ImageSource& q_src, const FeatureOptions& options,
+                       const fs::path& cache) {
+  if (split.rfind("query_", 0) != 0) {
+    throw std::invalid_argument("--sequence: split " + split + " is not a query_X split");
+  }
+  const std::string trail = "trail_" + split.substr(6);
+  const std::vector<std::string> queries = ds.Split(split);
+  const std::vector<std::string> trail_names = ds.Split(trail);
+  if (trail_names.size() % queries.size() != 0) {
+    throw std::runtime_error(a.dataset + ": split " + trail + " has " +
+                             std::to_string(trail_names.size()) + " images, not a multiple of " +
+                             split + "'s " + std::to_string(queries.size()));
+  }
+  const size_t per = trail_names.size() / queries.size();
+  if (static_cast<size_t>(a.sequence - 1) > per) {
+    throw std::invalid_argument("--sequence " + std::to_string(a.sequence) + ": the dataset's " +
+                                "trails have " + std::to_string(per) + " images per query");
+  }
+  const fs::path odom_file = fs::path(a.dataset) / (trail + "_odometry.csv");
+  std::map<std::string, Pose2D> odom;
+  for (const PoseRecord& r : ParsePosesCsv(ReadFile(odom_file), odom_file.string())) {
+    odom[r.image] = r.pose;
+  }
+  std::map<std::string, size_t> ordinal;
+  for (size_t i = 0; i < queries.size(); ++i) ordinal[queries[i]] = i;
+  const size_t n = static_cast<size_t>(a.sequence - 1);
+  std::vector<std::string> wanted;  // the trails of the queries kept (after --max-queries)
+  for (size_t qi = 0; qi < q_src.size(); ++qi) {
+    const size_t i = ordinal.at(q_src.name(qi));
+    for (size_t j = 1; j <= n; ++j) wanted.push_back(trail_names[i * per + j - 1]);
+  }
+  ImageSource t_src = ImageSource::FromDataset(a.dataset, trail);
+  t_src.Keep(wanted);
+  std::vector<ImageFeatures> feats = ExtractAllCached(t_src, options, cache, a.threads, !a.quiet);
+  QueryTrails t;
+  t.views.resize(q_src.size());
+  t.poses.assign(q_src.size(), {Pose2D{}});
+  for (size_t qi = 0; qi < q_src.size(); ++qi) {
+    for (size_t j = 0; j < n; ++j) {
+      const size_t k = qi * n + j;
+      const auto it = odom.find(t_src.name(k));
+      if (it == odom.end()) {
+        throw std::runtime_error(odom_file.string() + ": no odometry for " + t_src.name(k));
+      }
+      t.views[qi].push_back(std::move(feats[k]));
+      t.poses[qi].push_back(it->second);
+    }
+  }
+  return t;
+}
+
 PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const Dataset& ds,
                         const std::vector<std::string>& splits, std::string* rankings,
                         std::string* poses, std::string* verifications) {
@@ -98,12 +165,19 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
   // Query images of every split, extracted (or read from the cache) before the database grows.
   std::vector<ImageSource> q_sources;
   std::vector<std::vector<BowVector>> q_vecs_all;
+  std::vector<QueryTrails> q_trails;  // --sequence
   for (const auto& split : splits) {
     ImageSource q_src = ImageSource::FromDataset(a.dataset, split);
     q_src.Subsample(a.max_queries);
-    q_vecs_all.push_back(EncodeAll(
-        enc, ExtractAllCached(q_src, QueryFeatureOptions(c.features), cache, a.threads, !a.quiet),
-        a.threads, !a.quiet));
+    std::vector<ImageFeatures> q_feats =
+        ExtractAllCached(q_src, QueryFeatureOptions(c.features), cache, a.threads, !a.quiet);
+    if (a.sequence > 1) {
+      q_trails.push_back(ReadTrails(a, ds, split, q_src, QueryFeatureOptions(c.features), cache));
+      for (size_t qi = 0; qi < q_feats.size(); ++qi) {
+        q_feats[qi] = q_trails.back().Combine(q_feats[qi], qi, geo);
+      }
+    }
+    q_vecs_all.push_back(EncodeAll(enc, q_feats, a.threads, !a.quiet));
     q_sources.push_back(std::move(q_src));
   }
 
@@ -310,16 +384,21 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
   // A localization query is extracted with the query options (query_num_features); the
   // insertion is timed with the image extracted as a keyframe.
   const FeatureExtractor fx(c.features), fxq(QueryFeatureOptions(c.features));
-  const bool query_differs = fxq.options().num_features != c.features.num_features;
+  // A keyframe is one image extracted as a keyframe: with --sequence a query is not one.
+  const bool query_differs =
+      fxq.options().num_features != c.features.num_features || a.sequence > 1;
   struct Samples {
     std::vector<double> ex, tr, in, qu, po, to;
   };
   // One query through every stage, as the node runs them, timed stage by stage.
-  auto time_query = [&](const cv::Mat& img, Samples* out) {
+  // With --sequence the trail's features are at hand (extracted as their images came) and the
+  // transform stage combines them with the query's before encoding.
+  auto time_query = [&](const cv::Mat& img, size_t split, size_t qi, Samples* out) {
     const auto t0 = std::chrono::steady_clock::now();
     const ImageFeatures f = fxq.Extract(img);
     const auto t1 = std::chrono::steady_clock::now();
-    const BowVector v = enc.Encode(f);
+    const BowVector v =
+        a.sequence > 1 ? enc.Encode(q_trails[split].Combine(f, qi, geo)) : enc.Encode(f);
     const auto t2 = std::chrono::steady_clock::now();
     const auto results = db.Query(v, static_cast<size_t>(lo.candidates), true);
     const auto t3 = std::chrono::steady_clock::now();
@@ -349,7 +428,7 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
   Samples main_samples;
   ProgressBar bar("timing", pool.size(), !a.quiet);
   for (const auto& [s, i] : pool) {
-    time_query(q_sources[s].LoadGray(i), &main_samples);
+    time_query(q_sources[s].LoadGray(i), s, i, &main_samples);
     bar.Add();
   }
   bar.Finish();
@@ -372,7 +451,7 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
           pr.by_kernel[k].hamming = ActiveHammingKernelName();
           pr.by_kernel[k].l2_bytes = ActiveByteDistanceKernelName();
         }
-        time_query(img, &samples[k]);
+        time_query(img, pool[qi].first, pool[qi].second, &samples[k]);
       }
       kbar.Add();
     }
@@ -496,6 +575,12 @@ void RegisterEval(CLI::App& app) {
                   "verification.candidates)");
   cmd->add_option("--min-inliers", a->min_inliers,
                   "Inliers a pose needs (default: the preset's verification.min_inliers)");
+  cmd->add_option("--sequence", a->sequence,
+                  "Sequence queries: each query with this many images in all, itself and the "
+                  "nearest of its trail (gtbow synth --query-trail), combined through their "
+                  "odometry as the node's localization does; 1 = single images")
+      ->check(CLI::Range(1, 21))
+      ->capture_default_str();
   cmd->add_option("-j,--threads", a->threads,
                   "Threads for extraction and evaluation, 0 = all cores (timing uses one)");
   cmd->add_option("--cache", a->cache, "Feature and vocabulary cache directory")

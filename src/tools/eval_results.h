@@ -53,6 +53,9 @@ struct EvalArgs {
   std::vector<std::string> timing_kernels;
   int candidates = 0;   // 0: each preset's verification.candidates
   int min_inliers = 0;  // 0: each preset's verification.min_inliers
+  // Sequence queries: each query with the sequence - 1 images of its trail (gtbow synth
+  // --query-trail), combined through their odometry (Localizer::Combine); 1 = single images.
+  int sequence = 1;
   int threads = 0;
   std::string cache = DefaultCacheDir().string();
   bool no_cache = false;

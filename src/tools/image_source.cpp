@@ -6,6 +6,7 @@
 #include <cstdlib>
 #include <cstring>
 #include <mutex>
+#include <set>
 #include <stdexcept>
 #include <thread>
 
@@ -60,6 +61,14 @@ void ImageSource::Subsample(size_t max_images) {
   std::vector<std::string> kept;
   for (size_t i = 0; i < max_images; ++i) kept.push_back(names_[i * names_.size() / max_images]);
   names_.swap(kept);
+}
+
+void ImageSource::Keep(const std::vector<std::string>& names) {
+  const std::set<std::string> held(names_.begin(), names_.end());
+  for (const auto& n : names) {
+    if (held.count(n) == 0) throw std::runtime_error("image " + n + " is not in this source");
+  }
+  names_ = names;
 }
 
 std::vector<ImageFeatures> ExtractAll(const ImageSource& source, const FeatureOptions& options,

@@ -28,6 +28,8 @@ class ImageSource {
   cv::Mat LoadGray(size_t i) const;
   // Keeps every k-th image so that at most `max_images` remain (0 = all).
   void Subsample(size_t max_images);
+  // Keeps exactly these images, in this order; throws naming one the source does not hold.
+  void Keep(const std::vector<std::string>& names);
   // The file of image i.
   std::filesystem::path Path(size_t i) const;
   // Identifies the images: names, sizes and modification times (for caches).

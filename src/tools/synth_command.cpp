@@ -160,6 +160,14 @@ void RegisterSynth(CLI::App& app) {
   cmd->add_option("--later-drive-length", o.later_drive_length,
                   "Metres of each later drive (0: as --drive)")
       ->capture_default_str();
+  cmd->add_option("--query-trail", o.query_trail,
+                  "Also render what the robot saw just before each query: this many images on a "
+                  "line behind it (split trail_X for query split query_X, query i's at "
+                  "i * N + j - 1), with trail_X_odometry.csv, each one's odometry relative to its "
+                  "query (--odom-* noise); for sequence queries (gtbow eval --sequence)")
+      ->capture_default_str();
+  cmd->add_option("--trail-spacing", o.trail_spacing, "Metres between a query's trail images")
+      ->capture_default_str();
   cmd->add_option("--odom-scale-bias", o.odometry.scale_bias,
                   "Odometry: systematic distance scale error, fraction")
       ->capture_default_str();

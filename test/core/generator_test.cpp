@@ -144,6 +144,46 @@ TEST(Generator, LaterDrivesStartElsewhereWithOdometryFromTheOrigin) {
   EXPECT_THROW(PlanDataset(bad), std::invalid_argument);
 }
 
+TEST(Generator, QueryTrailsLieBehindTheirQueriesInTheirSessionWithOdometry) {
+  SynthOptions o = Small();
+  o.query_trail = 3;
+  o.trail_spacing = 0.02;
+  const DatasetPlan plan = PlanDataset(o);
+  std::map<std::string, const PlannedImage*> by_name;
+  for (const auto& im : plan.images) by_name[im.name] = &im;
+  for (const char* day : {"day000", "day060"}) {
+    const auto& queries = plan.splits.at(std::string("query_") + day);
+    const auto& trail = plan.splits.at(std::string("trail_") + day);
+    const auto& odom = plan.trail_odometry.at(std::string("trail_") + day);
+    ASSERT_EQ(trail.size(), 3 * queries.size());
+    ASSERT_EQ(odom.size(), trail.size());
+    for (size_t i = 0; i < queries.size(); ++i) {
+      const PlannedImage& q = *by_name.at(queries[i]);
+      for (size_t j = 1; j <= 3; ++j) {
+        const PlannedImage& t = *by_name.at(trail[i * 3 + j - 1]);
+        EXPECT_EQ(odom[i * 3 + j - 1].image, t.name);
+        EXPECT_EQ(t.day, q.day);
+        EXPECT_EQ(t.visit, q.visit);  // the same session: the same marks on the floor
+        const double d = std::hypot(t.pose.x - q.pose.x, t.pose.y - q.pose.y);
+        EXPECT_LE(d, 0.02 * j + 1e-6) << t.name;
+        // Odometry relative to the query: the true relative pose up to its noise.
+        const Pose2D truth = Compose(Inverse(q.pose), t.pose);
+        const Pose2D& od = odom[i * 3 + j - 1].pose;
+        EXPECT_LT(std::hypot(truth.x - od.x, truth.y - od.y), 0.002) << t.name;
+        EXPECT_LT(std::abs(WrapAngle(truth.theta - od.theta)), 0.005) << t.name;
+        EXPECT_GT(std::hypot(od.x, od.y), 0.0) << t.name;
+      }
+    }
+  }
+  // Trails go with the queries.
+  o.only = {"database"};
+  EXPECT_TRUE(PlanDataset(o).trail_odometry.empty());
+  o.only = {"queries"};
+  EXPECT_EQ(PlanDataset(o).trail_odometry.size(), 2u);
+  o.query_trail = 21;
+  EXPECT_THROW(PlanDataset(o), std::invalid_argument);
+}
+
 TEST(Generator, SquareAreaForImages) {
   SynthOptions o;
   for (int n : {100, 32000}) {
@@ -270,7 +310,8 @@ class PhotoFloor : public testing_util::TempDirTest {
 };
 
 TEST_F(PhotoFloor, NoImageCrossesItsPhotosEdgeAndQueriesAreSplitPerPhoto) {
-  const SynthOptions o = Options();
+  SynthOptions o = Options();
+  o.query_trail = 2;  // trails too stay on their query's photo
   const auto regions = LoadPhotoFloor(o);
   ASSERT_EQ(regions.size(), 3u);
   EXPECT_EQ(regions[1].label, "small_floor");
@@ -295,7 +336,7 @@ TEST_F(PhotoFloor, NoImageCrossesItsPhotosEdgeAndQueriesAreSplitPerPhoto) {
     if (im.split == "train") EXPECT_EQ(inside, 2) << im.name;
     if (im.split != "train") EXPECT_LT(inside, 2) << im.name;
     if (im.split == "database") ++per_region_db[regions[inside].label];
-    if (im.split.rfind("query_", 0) == 0) {
+    if (im.split.rfind("query_", 0) == 0 || im.split.rfind("trail_", 0) == 0) {
       EXPECT_NE(im.split.find(regions[inside].label), std::string::npos) << im.split;
     }
   }

@@ -83,7 +83,8 @@ TEST_F(GtbowCli, BadInputGivesAClearMessageAndNonZeroExit) {
 
 TEST_F(GtbowCli, TrainEvaluateAndBenchmarkOnASyntheticFloor) {
   const std::string d = Out("floor");
-  Result r = RunGtbow("synth --out " + d + " --area 0.4 0.3 --train 12 --queries 6 --days 0,90 -q");
+  Result r = RunGtbow("synth --out " + d +
+                      " --area 0.4 0.3 --train 12 --queries 6 --days 0,90 --query-trail 2 -q");
   ASSERT_EQ(r.code, 0) << r.output;
   r = RunGtbow("train-vocab --dataset " + d + " --words 800 --out " + Out("v.gtvoc") + " -q");
   ASSERT_EQ(r.code, 0) << r.output;
@@ -119,6 +120,19 @@ TEST_F(GtbowCli, TrainEvaluateAndBenchmarkOnASyntheticFloor) {
     EXPECT_LE(r100_bow, 1.0);
     EXPECT_EQ(b["pr_verified"]["precision"].size(), b["pr_verified"]["recall"].size());
   }
+  // Sequence queries: each query with the two images of its trail, through their odometry.
+  EXPECT_TRUE(fs::exists(fs::path(d) / "trail_day090_odometry.csv"));
+  r = RunGtbow("eval --dataset " + d + " --vocab " + Out("v.gtvoc") + " --out " + Out("seq") +
+               " --sequence 3 --query-splits query_day000 --timing-queries 0 --no-cache" +
+               " --no-plots -q");
+  ASSERT_EQ(r.code, 0) << r.output;
+  const YAML::Node seq = YAML::LoadFile((dir_ / "seq" / "results.json").string());
+  EXPECT_EQ(seq["protocol"]["sequence"].as<int>(), 3);
+  EXPECT_GE(seq["presets"][0]["splits"][0]["localization"]["success_rate"].as<double>(), 0.5);
+  r = RunGtbow("eval --dataset " + d + " --vocab " + Out("v.gtvoc") + " --out " + Out("seq4") +
+               " --sequence 4 --query-splits query_day000 --no-cache --no-plots -q");
+  EXPECT_NE(r.code, 0);
+  EXPECT_NE(r.output.find("2 images per query"), std::string::npos) << r.output;
   std::ifstream poses(dir_ / "poses.csv");
   std::string header;
   std::getline(poses, header);

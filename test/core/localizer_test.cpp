@@ -3,6 +3,7 @@
 // file that survives a round trip and refuses damage.
 #include "ground_texture_bow/core/localizer.h"
 
+#include <array>
 #include <cctype>
 #include <chrono>
 #include <cmath>
@@ -34,6 +35,10 @@ struct Scene {
   std::vector<Pose2D> db_poses;
   std::vector<cv::Mat> revisits;  // every third database place, 30 days later, a bit off
   std::vector<Pose2D> revisit_poses;
+  // Sequence queries: for the first three revisits, the two images the robot took just before
+  // (2 and 4 cm along the image's x axis, turning a little), on the same day.
+  std::vector<std::array<cv::Mat, 2>> trails;
+  std::vector<std::array<Pose2D, 2>> trail_poses;
 };
 
 const Scene& TheScene() {
@@ -65,6 +70,19 @@ const Scene& TheScene() {
       im.visit = 100;
       s.revisits.push_back(floor.Render(im));
       s.revisit_poses.push_back(im.pose);
+      if (s.trails.size() < 3) {
+        std::array<cv::Mat, 2> views;
+        std::array<Pose2D, 2> poses;
+        for (int j = 0; j < 2; ++j) {
+          synth::PlannedImage t = im;
+          t.name += "_trail" + std::to_string(j);
+          t.pose = Compose(im.pose, {0.02 * (j + 1), 0.001 * j, 0.02 * (j + 1)});
+          views[j] = floor.Render(t);
+          poses[j] = t.pose;
+        }
+        s.trails.push_back(views);
+        s.trail_poses.push_back(poses);
+      }
     }
     cv::Mat desc;
     cv::vconcat(train, desc);
@@ -897,6 +915,45 @@ TEST(Localizer, QueriesTakeMoreKeypointsThanKeyframes) {
   }
   // Not recorded in the map: a map saved without it loads with it.
   EXPECT_EQ(FormatRetrievalConfig(o.retrieval), FormatRetrievalConfig(Options().retrieval));
+}
+
+// Sequence queries: an image mostly hidden (glare, a lens smudge: not the floor) localizes with
+// the two images before it, combined through odometry that is 0.2 mm and 0.1 degree off.
+TEST(Localizer, SequenceQueriesLocalizeAHiddenImageWithTheImagesBeforeIt) {
+  const Scene& s = TheScene();
+  const auto loc = Mapped(true);
+  ASSERT_EQ(s.trails.size(), 3u);
+  for (size_t q = 0; q < s.trails.size(); ++q) {
+    cv::Mat hidden = s.revisits[q].clone();
+    hidden.colRange(0, hidden.cols * 9 / 10).setTo(128);
+    const ProcessedImage newest = loc->Process(hidden, Localizer::ImageUse::kQuery);
+    const ProcessedImage t1 = loc->Process(s.trails[q][0], Localizer::ImageUse::kQuery);
+    const ProcessedImage t2 = loc->Process(s.trails[q][1], Localizer::ImageUse::kQuery);
+    const Pose2D odom_newest = s.revisit_poses[q];
+    const Pose2D odom_t1 = Compose(s.trail_poses[q][0], {0.0002, -0.0001, 0.0017});
+    const Pose2D odom_t2 = Compose(s.trail_poses[q][1], {-0.0001, 0.0002, -0.0017});
+    const ProcessedImage seq = loc->Combine({&newest, &t1, &t2}, {odom_newest, odom_t1, odom_t2});
+    EXPECT_GT(seq.features.size(), newest.features.size() + t1.features.size() / 2);
+    EXPECT_EQ(seq.width, newest.width);
+    const Localization single = loc->Localize(newest);
+    const Localization fix = loc->Localize(seq);
+    ASSERT_TRUE(fix.success) << "place " << q << ": " << fix.reason;
+    const Pose2D& t = s.revisit_poses[q];
+    const Pose2D& p = fix.estimate.floor_from_query;
+    EXPECT_LT(1000 * std::hypot(p.x - t.x, p.y - t.y), 4.8) << "place " << q;
+    EXPECT_LT(std::abs(std::remainder(p.theta - t.theta, 2 * M_PI)) * 180 / M_PI, 1.5);
+    EXPECT_GT(fix.estimate.inliers, single.success ? 2 * single.estimate.inliers : 0)
+        << "place " << q << ": the trail added no evidence";
+  }
+  const cv::Mat small = s.revisits[0](cv::Rect(0, 0, 320, 240)).clone();
+  const ProcessedImage a = loc->Process(s.revisits[0], Localizer::ImageUse::kQuery);
+  const ProcessedImage b = loc->Process(small, Localizer::ImageUse::kQuery);
+  try {
+    loc->Combine({&a, &b}, {Pose2D{}, Pose2D{}});
+    ADD_FAILURE() << "images of two sizes were combined";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("differ in size"), std::string::npos) << e.what();
+  }
 }
 
 TEST(Localizer, BadImagesAndPosesGetClearErrors) {

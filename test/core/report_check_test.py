@@ -303,6 +303,61 @@ class Real(Base):
         self.expect(OK, "write_real_results.py", "--heldout", held, ins[0], self.docs, *ins[1:])
         self.assertIn("Held-out photographs", self.section("real"))
 
+    def sequence_inputs(self, cf5_oldest=0.95, wrong=0, renderings=(2, 3, 4), smooth5=0.8):
+        """The --sequence results of scripts/benchmark_real.sh: rendering 1 with 3 and 5 images,
+        renderings 2-4 with 1 and 5, the synthetic surfaces with 3 and 5, the held-out photos."""
+        def res(name, n, presets, cf_oldest, surface="photo", photos=PHOTOS, w=0):
+            r = real_results(photos=photos, presets=presets, cf_oldest=cf_oldest, cf_wrong=w)
+            r["dataset"].update({"name": name, "surface": surface})
+            r["protocol"] = {"sequence": n}
+            return r
+
+        out = []
+        both = ["high_accuracy", "changing_floors"]
+        for n in (3, 5):
+            out.append(dump(os.path.join(self.dir, "seq1_%d" % n, "results.json"),
+                            res("photo_floor_seed1", n, both, cf5_oldest, w=wrong if n == 5 else 0)))
+        for r in renderings:
+            for n in (1, 5):
+                out.append(dump(os.path.join(self.dir, "seq%d_%d" % (r, n), "results.json"),
+                                res("photo_floor_seed%d" % r, n, ["changing_floors"],
+                                    cf5_oldest if n == 5 else 0.5)))
+        for surface in ("smooth_concrete", "epoxy"):
+            for n in (3, 5):
+                lc = low_contrast(surface)
+                lc["dataset"].update({"name": surface + "_synth_seed1", "surface": surface})
+                lc["protocol"] = {"sequence": n}
+                for p in lc["presets"]:
+                    if p["name"] == "changing_floors":
+                        p["splits"][1] = split("query_day180", 180, loc=smooth5, queries=30)
+                out.append(dump(os.path.join(self.dir, "lc_%s_%d" % (surface, n), "results.json"), lc))
+        out.append(dump(os.path.join(self.dir, "held5", "results.json"),
+                        res("photo_floor_seed1", 5, both, 0.9, photos=PHOTOS[:2])))
+        return [a for f in out for a in ("--sequence", f)]
+
+    def test_sequences_get_their_table_and_targets(self):
+        ins = self.inputs()
+        out = self.expect(OK, "write_real_results.py", *self.sequence_inputs(), ins[0], self.docs, *ins[1:])
+        self.assertIn("missed, known", out)  # epoxy, and the worst surface below 90% is open
+        text = self.section("real")
+        self.assertIn("Sequence queries", text)
+        self.assertIn("rendering 4: 1 / 5 images", text)
+
+    def test_sequence_wrong_pose(self):
+        ins = self.inputs()
+        self.expect(MISSED, "write_real_results.py", "--check", *self.sequence_inputs(wrong=1), *ins,
+                    why="sequences, wrong verified poses")
+
+    def test_sequence_smooth_concrete_missed(self):
+        ins = self.inputs()
+        self.expect(MISSED, "write_real_results.py", "--check", *self.sequence_inputs(smooth5=0.7), *ins,
+                    why="5-image sequences, synthetic smooth concrete")
+
+    def test_sequence_rendering_missing(self):
+        ins = self.inputs()
+        self.expect(MISSING, "write_real_results.py", "--check", *self.sequence_inputs(renderings=(2, 3)), *ins,
+                    why="4 renderings")
+
     def test_changing_floors_oldest_day_missed(self):
         self.expect(MISSED, "write_real_results.py", "--check", *self.inputs(real_results(cf_oldest=0.5)),
                     why="changing_floors, day-180 localization, mean of the surfaces")

@@ -193,6 +193,35 @@ TEST(Robot, BaseFixesFromCameraInfoAndTfHeldWrongFixesAndAKidnappedRobot) {
   EXPECT_GT(b0.pose.covariance[0] + b0.pose.covariance[7],
             c0.pose.covariance[0] + c0.pose.covariance[7]);
 
+  // 1b. Sequence queries (~sequence_length 3, ~sequence_max_span 0.1 m): the same images to a
+  //     localizer that combines each with the two before it through odometry. The first half
+  //     of the images follow a path 3 cm apart (combined), the rest are far apart (alone).
+  {
+    ground_texture_bow::LoadMap seq_load;
+    seq_load.request.path = save.request.path;
+    ASSERT_EQ(Call("/sequence/load_map", seq_load).response.status.code, Status::OK);
+    Collector<geometry_msgs::PoseWithCovarianceStamped> seq_topic("/sequence/pose");
+    ros::WallDuration(0.5).sleep();
+    const auto frames = RobotFrames(later, drift_a, ros::Time::now());
+    Replay(frames, "/seq_camera/image_raw", "/sequence", 4.0);
+    const auto seq_info = Info("/sequence");
+    EXPECT_EQ(seq_info.images_processed, frames.size());
+    EXPECT_GE(seq_info.sequence_queries, 5u) << "consecutive images 3 cm apart were combined";
+    EXPECT_LT(seq_info.sequence_queries, frames.size()) << "images far apart are not combined";
+    const auto seq_fixes = Fixes(seq_topic.Get());
+    int seq_good = 0;
+    for (const Frame& f : frames) {
+      auto it = seq_fixes.find(f.image->header.stamp);
+      seq_good += it != seq_fixes.end() && Within(it->second, f.truth);
+    }
+    std::printf(
+        "sequence: %zu base fixes for %zu images (%lu combined), %d within 4.8 mm / "
+        "1.5 deg\n",
+        seq_fixes.size(), frames.size(), static_cast<unsigned long>(seq_info.sequence_queries),
+        seq_good);
+    EXPECT_GE(seq_good, static_cast<int>(std::ceil(0.95 * static_cast<double>(frames.size()))));
+  }
+
   // 2. A wrong fix: the image of one place while odometry says the robot is at another, 15 cm
   //    or more away. It is held, and map -> odom does not move.
   size_t far = 1;

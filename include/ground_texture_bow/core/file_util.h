@@ -75,6 +75,11 @@ class MappedFile {
   size_t size_;
 };
 
+// Asks the kernel to read [data, data + size) of a mapped file ahead (madvise MADV_WILLNEED on
+// the pages it touches) and returns at once: several ranges asked for one after the other are
+// read from the disk together instead of one page fault at a time. Best effort: never fails.
+void AdviseWillNeed(const void* data, size_t size);
+
 // Reads a whole file; throws std::runtime_error naming the path when it cannot be read.
 std::string ReadFile(const std::filesystem::path& path);
 

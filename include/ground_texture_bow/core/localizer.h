@@ -188,6 +188,15 @@ class Localizer {
   // The fix is estimate.floor_from_query, in the map frame; image is the keyframe.
   Localization Localize(const ProcessedImage& image) const;
 
+  // A sequence query (sequence.h): images[0] is the newest image, the others the robot's images
+  // just before it, poses[i] each one's pose in a common odometry frame (metres, radians, the
+  // image poses of geometry.h). Their features are combined in images[0]'s frame (each place of
+  // the floor once: CombineViews) and encoded as one image of images[0]'s size, which Localize and
+  // Query take as they take one image: a fix is images[0]'s pose. Throws std::invalid_argument when
+  // the sizes differ.
+  ProcessedImage Combine(const std::vector<const ProcessedImage*>& images,
+                         const std::vector<Pose2D>& poses) const;
+
   // Writes the map (vocabulary path and fingerprint, options, database, keyframes) atomically:
   // a failure leaves any existing file untouched. Throws std::runtime_error naming the path.
   // Insertion and queries go on while the file is written: the save holds the lock only to
@@ -265,6 +274,10 @@ class Localizer {
   // added without one); under mutex_.
   std::optional<Pose2D> PoseOf(uint32_t id, const detail::KeyframeRecord& record) const;
   std::string Damaged(uint32_t id) const;
+  // Asks the disk for the first `n` results' payloads that live in a map file, all at once,
+  // before verification reads them one by one (a loaded map's payloads are mostly not in
+  // memory); under mutex_.
+  void PrefetchPayloads(const std::vector<QueryResult>& results, size_t n) const;
   std::unique_ptr<BowDatabase> NewDatabase() const;
   std::unique_ptr<detail::KeyframeStore> NewStore() const;
   size_t PayloadStride() const;

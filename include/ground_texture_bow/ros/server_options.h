@@ -10,6 +10,7 @@
 #include "ground_texture_bow/core/localizer.h"
 #include "ground_texture_bow/core/mapper.h"
 #include "ground_texture_bow/core/odometry_gate.h"
+#include "ground_texture_bow/core/sequence.h"
 
 namespace gtbow_ros {
 
@@ -55,6 +56,9 @@ struct ServerOptions {
   double transform_tolerance = 0.1;      // s: map -> odom is dated this far ahead (amcl's)
   double tf_rate = 20.0;                 // Hz: map -> odom republished (publish_tf)
   gtbow::OdometryGateOptions gate;       // ~odom_gate, ~gate_*, ~relocalize_after
+  // Sequence queries in localization mode (core/sequence.h): each image with the ones before it
+  // through odometry; ~sequence_length (1: single images), ~sequence_max_span (metres).
+  gtbow::SequenceOptions sequence;
   // Nothing lost: the map is saved to autosave_path (absolute; "" = never) every
   // autosave_period seconds (0 = never periodically) and when the node shuts down
   // (save_on_shutdown), whenever keyframes were added since the last save.

@@ -7,6 +7,7 @@
 #include <cmath>
 #include <cstdio>
 #include <exception>
+#include <functional>
 #include <mutex>
 #include <sstream>
 #include <stdexcept>
@@ -138,6 +139,9 @@ void SynthOptions::Check() const {
            later_drive_length / drive_spacing <= 5e6,
        "later_drive_length must be >= 0 and at most 5 million images");
   need(drive_length == 0 || photos.empty(), "a drive needs a synthetic floor, not --photo");
+  need(query_trail >= 0 && query_trail <= 20, "query_trail must be in [0, 20]");
+  need(std::isfinite(trail_spacing) && trail_spacing >= 1e-4 && trail_spacing <= 1.0,
+       "trail_spacing must be in [0.0001, 1] metres");
   need(photo_meters_per_pixel >= 0 && std::isfinite(photo_meters_per_pixel),
        "photo_meters_per_pixel must be >= 0 (0: the camera's meters_per_pixel)");
   need(photos.empty() || train_images == 0 || !train_photos.empty(),
@@ -174,6 +178,7 @@ void KeepOnly(const SynthOptions& o, DatasetPlan* plan) {
   if (o.only.empty()) return;
   auto kind = [](const std::string& split) {
     if (split.rfind("drive_day", 0) == 0) return std::string("drive");
+    if (split.rfind("trail_", 0) == 0) return std::string("queries");
     return split.rfind("query_", 0) == 0 ? std::string("queries") : split;
   };
   auto wanted = [&](const std::string& split) {
@@ -188,6 +193,7 @@ void KeepOnly(const SynthOptions& o, DatasetPlan* plan) {
     plan->drive_odometry.clear();
     plan->later_drive_odometry.clear();
   }
+  if (!wanted("queries")) plan->trail_odometry.clear();
   for (auto it = plan->splits.begin(); it != plan->splits.end();) {
     it = wanted(it->first) ? std::next(it) : plan->splits.erase(it);
   }
@@ -225,6 +231,53 @@ std::string SafeLabel(const std::string& s) {
   }
   while (!out.empty() && out.back() == '_') out.pop_back();
   return out.empty() ? "photo" : out;
+}
+
+// The trail of a query (SynthOptions::query_trail): its images, oldest last in the split
+// (j = 1 the nearest), on a line from the query toward `middle`, and their odometry relative
+// to the query. `fit` keeps a pose's footprint where images can be taken. `ordinal` is the
+// query's place in its split.
+void AddTrail(const SynthOptions& o, const PlannedImage& query, size_t ordinal, Vec2 middle,
+              const std::function<Pose2D(Pose2D)>& fit, DatasetPlan* plan) {
+  if (o.query_trail <= 0) return;
+  const std::string split = "trail_" + query.split.substr(std::string("query_").size());
+  CellRng rng(HashCombine(HashCombine(o.seed, 0x7a17),
+                          HashCombine(query.visit, ordinal) + std::hash<std::string>{}(split)));
+  double dx = middle.x - query.pose.x, dy = middle.y - query.pose.y;
+  const double norm = std::hypot(dx, dy);
+  if (norm < 1e-9) {
+    const double a = rng.Uniform(-M_PI, M_PI);
+    dx = std::cos(a);
+    dy = std::sin(a);
+  } else {
+    dx /= norm;
+    dy /= norm;
+  }
+  // True poses, the query last; each step back turns the heading a little (a gentle curve).
+  std::vector<Pose2D> truth(static_cast<size_t>(o.query_trail) + 1);
+  truth.back() = query.pose;
+  const double turn = 0.02 * rng.Normal();
+  for (int j = 1; j <= o.query_trail; ++j) {
+    Pose2D p{query.pose.x + j * o.trail_spacing * dx, query.pose.y + j * o.trail_spacing * dy,
+             WrapAngle(query.pose.theta + j * turn)};
+    truth[truth.size() - 1 - static_cast<size_t>(j)] = Rounded(fit(p));
+  }
+  const std::vector<Pose2D> odom = SimulateOdometry(truth, o.odometry, rng.Next());
+  const Pose2D query_from_odom = Inverse(odom.back());
+  std::vector<std::string>& names = plan->splits[split];
+  std::vector<PoseRecord>& rel = plan->trail_odometry[split];
+  for (int j = 1; j <= o.query_trail; ++j) {
+    const size_t t = truth.size() - 1 - static_cast<size_t>(j);
+    PlannedImage im = query;
+    im.split = split;
+    im.name = ImageName(split, ordinal * static_cast<size_t>(o.query_trail) + j - 1);
+    im.pose = truth[t];
+    names.push_back(im.name);
+    plan->images.push_back(im);
+    Pose2D r = Compose(query_from_odom, odom[t]);
+    r.theta = WrapAngle(r.theta);
+    rel.push_back({im.name, r});
+  }
 }
 
 }  // namespace
@@ -373,6 +426,10 @@ DatasetPlan PlanPhotoDataset(const SynthOptions& o, const std::vector<PhotoRegio
         im.visit = kFirstQueryVisit + k;
         names.push_back(im.name);
         plan.images.push_back(im);
+        const PhotoRegion& r = regions[ri];
+        AddTrail(
+            o, im, static_cast<size_t>(i), {r.x0 + 0.5 * r.width(), r.y0 + 0.5 * r.height()},
+            [&](Pose2D p) { return fit(p, r); }, &plan);
       }
     }
   }
@@ -590,6 +647,14 @@ DatasetPlan PlanDataset(const SynthOptions& o) {
       im.visit = kFirstQueryVisit + k;
       names.push_back(im.name);
       plan.images.push_back(im);
+      AddTrail(
+          o, im, static_cast<size_t>(i), {0.5 * (qx0 + qx1), 0.5 * (qy0 + qy1)},
+          [&](Pose2D p) {
+            p.x = std::clamp(p.x, qx0, qx1);
+            p.y = std::clamp(p.y, qy0, qy1);
+            return p;
+          },
+          &plan);
     }
   }
   // The drive: one recording session over the database area, with its odometry.
@@ -732,6 +797,10 @@ SynthSummary GenerateDataset(const SynthOptions& o, const fs::path& out, bool fo
     for (const auto& [split, odom] : plan.later_drive_odometry) {
       WriteFileAtomic(staging / (split + "_odometry.csv"), FormatPosesCsv(odom));
     }
+    for (const auto& [split, odom] : plan.trail_odometry) {
+      // Each trail image's odometry pose in its query's frame (SynthOptions::query_trail).
+      WriteFileAtomic(staging / (split + "_odometry.csv"), FormatPosesCsv(odom));
+    }
     // Provenance: how this dataset was made (an extra file the format allows).
     std::ostringstream prov;
     prov << "# gtbow synth parameters\nsurface: "
@@ -746,18 +815,23 @@ SynthSummary GenerateDataset(const SynthOptions& o, const fs::path& out, bool fo
          << "\nlight_azimuth: " << o.camera.light_azimuth
          << "\nlight_elevation: " << o.camera.light_elevation << "\n";
     if (o.drive_length > 0) {
-      prov << "drive_length: " << o.drive_length << "\ndrive_spacing: " << o.drive_spacing
-           << "\nodometry_scale_bias: " << o.odometry.scale_bias
-           << "\nodometry_scale_noise: " << o.odometry.scale_noise
-           << "\nodometry_turn_bias: " << o.odometry.turn_bias
-           << "\nodometry_heading_bias: " << o.odometry.heading_bias
-           << "\nodometry_heading_noise: " << o.odometry.heading_noise << "\n";
+      prov << "drive_length: " << o.drive_length << "\ndrive_spacing: " << o.drive_spacing << "\n";
       if (!o.later_drive_days.empty()) {
         prov << "later_drive_days: [";
         for (size_t k = 0; k < o.later_drive_days.size(); ++k)
           prov << (k ? ", " : "") << o.later_drive_days[k];
         prov << "]\nlater_drive_length: " << o.later_drive_length << "\n";
       }
+    }
+    if (o.query_trail > 0) {
+      prov << "query_trail: " << o.query_trail << "\ntrail_spacing: " << o.trail_spacing << "\n";
+    }
+    if (o.drive_length > 0 || o.query_trail > 0) {
+      prov << "odometry_scale_bias: " << o.odometry.scale_bias
+           << "\nodometry_scale_noise: " << o.odometry.scale_noise
+           << "\nodometry_turn_bias: " << o.odometry.turn_bias
+           << "\nodometry_heading_bias: " << o.odometry.heading_bias
+           << "\nodometry_heading_noise: " << o.odometry.heading_noise << "\n";
     }
     if (!regions.empty()) {
       // Each photograph: file name, checksum of its bytes, scale and where it lies on the floor.

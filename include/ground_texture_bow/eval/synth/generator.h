@@ -69,6 +69,14 @@ struct SynthOptions {
   // which starts at the origin (a robot's odometry after it boots, not the map's frame).
   std::vector<double> later_drive_days;
   double later_drive_length = 0.0;
+  // What a robot saw just before each query: query_trail images per query on a straight line
+  // behind it (toward the middle of its area or photo), trail_spacing metres apart, heading as
+  // the query's with a little turn, in the query's session (its day and visit). For query split
+  // query_X they form split trail_X (query i's images at i * query_trail + j - 1, j = 1 the
+  // nearest), and trail_X_odometry.csv holds each one's wheel odometry pose relative to its
+  // query (the query at the origin; OdometryNoise over the trail, oldest first). 0 = none.
+  int query_trail = 0;
+  double trail_spacing = 0.03;
   int threads = 0;  // worker threads, 0 = all cores
   // Render only these kinds of split ("train", "database", "queries", "drive"); empty = all. Poses
   // are those of the full dataset, so partial datasets of one seed fit together.
@@ -109,6 +117,9 @@ struct DatasetPlan {
   std::vector<PoseRecord> drive_odometry;
   // The later drives' odometry, by split (drive_dayDDD), each written as <split>_odometry.csv.
   std::map<std::string, std::vector<PoseRecord>> later_drive_odometry;
+  // The query trails' odometry relative to their queries, by trail split (trail_X), each
+  // written as <split>_odometry.csv.
+  std::map<std::string, std::vector<PoseRecord>> trail_odometry;
 };
 
 // The true poses of the drive: `length` metres of laps around a rounded rectangle inset half a
