@@ -44,6 +44,11 @@ for n in 3 5; do
     --no-plots -q > /dev/null
   seq+=(--sequence "$out-sequence$n/results.json")
 done
+# The ablation: the combined view only, not the query alone first (--sequence-always).
+"$gtbow" eval --dataset "$data" --words 20000 --preset "$cfg/high_accuracy.yaml" \
+  --preset "$cfg/changing_floors.yaml" --sequence 5 --sequence-always --out "$out-sequence5-always" \
+  --timing-queries 0 --no-plots -q > /dev/null
+seq+=(--sequence "$out-sequence5-always/results.json")
 # The same on three more renderings of the ten photos (other query poses, ageing and debris):
 # changing_floors alone, single images and 5-image sequences.
 for s in 2 3 4; do
@@ -80,6 +85,10 @@ bash "$here/scripts/real_floor_dataset.sh" "$gtbow" "$photos" "$data-heldout" he
 "$gtbow" eval --dataset "$data-heldout" --words 20000 --preset "$cfg/high_accuracy.yaml" \
   --preset "$cfg/changing_floors.yaml" --sequence 5 --out "$out-heldout-sequence5" \
   --timing-queries 0 --no-plots -q > /dev/null
+"$gtbow" eval --dataset "$data-heldout" --words 20000 --preset "$cfg/high_accuracy.yaml" \
+  --preset "$cfg/changing_floors.yaml" --sequence 5 --sequence-always \
+  --out "$out-heldout-sequence5-always" --timing-queries 0 --no-plots -q > /dev/null
 seq+=(--sequence "$out-heldout/results.json" --sequence "$out-heldout-sequence5/results.json")
+seq+=(--sequence "$out-heldout-sequence5-always/results.json")
 /usr/bin/python3 "$here/scripts/write_real_results.py" --heldout "$out-heldout/results.json" \
   "${seq[@]}" "$out/results.json" "$here/docs" "${lc[@]}"

@@ -121,6 +121,18 @@ void SequenceOptions::Check() const {
   }
 }
 
+Localization SequenceFix(const SequenceOptions& options,
+                         const std::function<Localization()>& single,
+                         const std::function<Localization()>& combined, bool* used_combined) {
+  if (used_combined != nullptr) *used_combined = false;
+  if (options.single_first) {
+    Localization own = single();
+    if (own.success) return own;
+  }
+  if (used_combined != nullptr) *used_combined = true;
+  return combined();
+}
+
 QuerySequence::QuerySequence(const SequenceOptions& options) : options_(options) {
   options_.Check();
 }

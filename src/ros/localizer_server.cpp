@@ -553,8 +553,15 @@ void LocalizerServer::ProcessImage(const Pending& msg) {
       // With the images just before it, related by odometry (core/sequence.h).
       sequence_.Push(img, odom);
       if (sequence_.size() > 1) {
-        sequence_queries_++;
-        fix = localizer_->Localize(localizer_->Combine(sequence_.images(), sequence_.poses()));
+        bool combined = false;
+        fix = gtbow::SequenceFix(
+            sequence_.options(), [&] { return localizer_->Localize(img); },
+            [&] {
+              return localizer_->Localize(
+                  localizer_->Combine(sequence_.images(), sequence_.poses()));
+            },
+            &combined);
+        if (combined) sequence_queries_++;
       } else {
         fix = localizer_->Localize(img);
       }

@@ -124,6 +124,7 @@ ServerOptions ReadOptions(const ros::NodeHandle& pnh) {
   pnh.param("relocalize_after", o.gate.relocalize_after, o.gate.relocalize_after);
   pnh.param("sequence_length", o.sequence.length, o.sequence.length);
   pnh.param("sequence_max_span", o.sequence.max_span, o.sequence.max_span);
+  pnh.param("sequence_single_first", o.sequence.single_first, o.sequence.single_first);
   pnh.param("diagnostics_window", o.diagnostics_window, o.diagnostics_window);
   pnh.param("autosave_path", o.autosave_path, o.autosave_path);
   pnh.param("autosave_period", o.autosave_period, o.autosave_period);

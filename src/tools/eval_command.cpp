@@ -165,13 +165,18 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
   // Query images of every split, extracted (or read from the cache) before the database grows.
   std::vector<ImageSource> q_sources;
   std::vector<std::vector<BowVector>> q_vecs_all;
-  std::vector<QueryTrails> q_trails;  // --sequence
+  std::vector<QueryTrails> q_trails;                 // --sequence
+  std::vector<std::vector<BowVector>> q_single_all;  // --sequence: each query alone
+  SequenceOptions sequence;
+  sequence.length = a.sequence;
+  sequence.single_first = !a.sequence_always;
   for (const auto& split : splits) {
     ImageSource q_src = ImageSource::FromDataset(a.dataset, split);
     q_src.Subsample(a.max_queries);
     std::vector<ImageFeatures> q_feats =
         ExtractAllCached(q_src, QueryFeatureOptions(c.features), cache, a.threads, !a.quiet);
     if (a.sequence > 1) {
+      q_single_all.push_back(EncodeAll(enc, q_feats, a.threads, !a.quiet));
       q_trails.push_back(ReadTrails(a, ds, split, q_src, QueryFeatureOptions(c.features), cache));
       for (size_t qi = 0; qi < q_feats.size(); ++qi) {
         q_feats[qi] = q_trails.back().Combine(q_feats[qi], qi, geo);
@@ -273,9 +278,23 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
       // Localization as the node does it, then every candidate of the top K verified on its
       // own (with the consensus, when on), to count wrong poses among all of them.
       const auto candidates = db.Query(q_vecs[qi], static_cast<size_t>(lo.candidates), true);
-      p.loc = VerifyCandidates(candidates, q_vecs[qi], map, geo, lo);
+      // A sequence query: the query alone first (--sequence-always: the combined view only),
+      // as the node does (SequenceFix).
+      std::vector<QueryResult> single_candidates;
+      if (a.sequence > 1) {
+        const BowVector& own = q_single_all[si][qi];
+        if (sequence.single_first) {
+          single_candidates = db.Query(own, static_cast<size_t>(lo.candidates), true);
+        }
+        p.loc = SequenceFix(
+            sequence, [&] { return VerifyCandidates(single_candidates, own, map, geo, lo); },
+            [&] { return VerifyCandidates(candidates, q_vecs[qi], map, geo, lo); }, nullptr);
+      } else {
+        p.loc = VerifyCandidates(candidates, q_vecs[qi], map, geo, lo);
+      }
       // One row per verified candidate: its evidence and its error against the truth.
-      auto record = [&](size_t rank, const PoseEstimate& e) {
+      auto record = [&](size_t rank, const PoseEstimate& e,
+                        const std::vector<QueryResult>& candidates) {
         ++p.verified;
         const bool wrong = !IsCorrectPose(e.floor_from_query, p.truth);
         p.wrong += wrong ? 1 : 0;
@@ -295,7 +314,14 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
       };
       const std::vector<PoseEstimate> each = VerifyEach(candidates, q_vecs[qi], map, geo, lo);
       for (size_t k = 0; k < each.size(); ++k) {
-        if (each[k].success) record(k, each[k]);
+        if (each[k].success) record(k, each[k], candidates);
+      }
+      if (!single_candidates.empty()) {  // the query alone's candidates count too
+        const std::vector<PoseEstimate> own =
+            VerifyEach(single_candidates, q_single_all[si][qi], map, geo, lo);
+        for (size_t k = 0; k < own.size(); ++k) {
+          if (own[k].success) record(k, own[k], single_candidates);
+        }
       }
       if (num_rel > 0) {
         p.counted = true;
@@ -393,17 +419,40 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
   // One query through every stage, as the node runs them, timed stage by stage.
   // With --sequence the trail's features are at hand (extracted as their images came) and the
   // transform stage combines them with the query's before encoding.
+  // With --sequence the stages add up as SequenceFix runs them: the query alone first (unless
+  // --sequence-always), then, when it gives no fix, the combined view.
   auto time_query = [&](const cv::Mat& img, size_t split, size_t qi, Samples* out) {
-    const auto t0 = std::chrono::steady_clock::now();
+    using Clock = std::chrono::steady_clock;
+    const auto t0 = Clock::now();
     const ImageFeatures f = fxq.Extract(img);
-    const auto t1 = std::chrono::steady_clock::now();
-    const BowVector v =
-        a.sequence > 1 ? enc.Encode(q_trails[split].Combine(f, qi, geo)) : enc.Encode(f);
-    const auto t2 = std::chrono::steady_clock::now();
-    const auto results = db.Query(v, static_cast<size_t>(lo.candidates), true);
-    const auto t3 = std::chrono::steady_clock::now();
-    const Localization loc = VerifyCandidates(results, v, map, geo, lo);
-    const auto t4_query = std::chrono::steady_clock::now();
+    const auto t1 = Clock::now();
+    Clock::duration transform{}, query{}, pose{};
+    BowVector v;
+    auto localize = [&](auto&& encode) {
+      const auto a0 = Clock::now();
+      v = encode();
+      const auto a1 = Clock::now();
+      const auto results = db.Query(v, static_cast<size_t>(lo.candidates), true);
+      const auto a2 = Clock::now();
+      Localization loc = VerifyCandidates(results, v, map, geo, lo);
+      const auto a3 = Clock::now();
+      transform += a1 - a0;
+      query += a2 - a1;
+      pose += a3 - a2;
+      return loc;
+    };
+    auto alone = [&] { return localize([&] { return enc.Encode(f); }); };
+    if (a.sequence > 1) {
+      (void)SequenceFix(
+          sequence, alone,
+          [&] { return localize([&] { return enc.Encode(q_trails[split].Combine(f, qi, geo)); }); },
+          nullptr);
+    } else {
+      (void)alone();
+    }
+    const auto t4_query = Clock::now();
+    const auto t2 = t1 + transform, t3 = t2 + query;
+    (void)pose;
     const BowVector keyframe = query_differs ? enc.Encode(fx.Extract(img)) : BowVector();
     const auto t4 = std::chrono::steady_clock::now();
     const uint32_t id = db.Add(query_differs ? keyframe : v);
@@ -415,7 +464,6 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
     out->po.push_back(Ms(t4_query - t3));
     out->in.push_back(Ms(t5 - t4));
     out->to.push_back(Ms(t4_query - t0));
-    (void)loc;
   };
   auto summarise = [](const Samples& s, auto* dst) {
     dst->extract = Summarise(s.ex);
@@ -581,6 +629,9 @@ void RegisterEval(CLI::App& app) {
                   "odometry as the node's localization does; 1 = single images")
       ->check(CLI::Range(1, 21))
       ->capture_default_str();
+  cmd->add_flag("--sequence-always", a->sequence_always,
+                "With --sequence, localize from the combined view only (the node's "
+                "~sequence_single_first false), not the query alone first");
   cmd->add_option("-j,--threads", a->threads,
                   "Threads for extraction and evaluation, 0 = all cores (timing uses one)");
   cmd->add_option("--cache", a->cache, "Feature and vocabulary cache directory")

@@ -56,6 +56,7 @@ struct EvalArgs {
   // Sequence queries: each query with the sequence - 1 images of its trail (gtbow synth
   // --query-trail), combined through their odometry (Localizer::Combine); 1 = single images.
   int sequence = 1;
+  bool sequence_always = false;  // the combined view only, not the query alone first
   int threads = 0;
   std::string cache = DefaultCacheDir().string();
   bool no_cache = false;

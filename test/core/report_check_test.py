@@ -346,7 +346,7 @@ class Real(Base):
     def test_sequence_wrong_pose(self):
         ins = self.inputs()
         self.expect(MISSED, "write_real_results.py", "--check", *self.sequence_inputs(wrong=1), *ins,
-                    why="sequences, wrong verified poses")
+                    why="wrong verified poses the combined views add")
 
     def test_sequence_smooth_concrete_missed(self):
         ins = self.inputs()

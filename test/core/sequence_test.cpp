@@ -143,5 +143,34 @@ TEST(QuerySequence, KeepsTheLastImagesWithOdometryWithinItsSpan) {
   EXPECT_THROW(QuerySequence{o}, std::invalid_argument);
 }
 
+TEST(SequenceFix, TheImageAloneFirstThenTheCombinedView) {
+  SequenceOptions o;
+  o.length = 3;
+  int singles = 0, combined = 0;
+  auto fix = [](bool success, int image) {
+    Localization l;
+    l.success = success;
+    l.image = image;
+    return l;
+  };
+  bool used = true;
+  Localization l = SequenceFix(
+      o, [&] { return ++singles, fix(true, 1); }, [&] { return ++combined, fix(true, 2); }, &used);
+  EXPECT_EQ(l.image, 1u);
+  EXPECT_FALSE(used);
+  EXPECT_EQ(combined, 0) << "the combined view is not localized when the image alone gives a fix";
+  l = SequenceFix(
+      o, [&] { return ++singles, fix(false, 1); }, [&] { return ++combined, fix(true, 2); }, &used);
+  EXPECT_EQ(l.image, 2u);
+  EXPECT_TRUE(used);
+  o.single_first = false;
+  l = SequenceFix(
+      o, [&] { return ++singles, fix(true, 1); }, [&] { return ++combined, fix(false, 2); }, &used);
+  EXPECT_FALSE(l.success);
+  EXPECT_TRUE(used);
+  EXPECT_EQ(singles, 2);
+  EXPECT_EQ(combined, 2);
+}
+
 }  // namespace
 }  // namespace gtbow

@@ -5,6 +5,7 @@
 #pragma once
 
 #include <deque>
+#include <functional>
 #include <optional>
 #include <vector>
 
@@ -34,8 +35,20 @@ double SameKeypointRadius(float size);
 struct SequenceOptions {
   int length = 1;          // images per query, the newest included; 1 = single images
   double max_span = 0.25;  // metres of odometry from the oldest image kept to the newest
-  void Check() const;      // throws std::invalid_argument naming the bad field
+  // The newest image alone first, the combined view only when it gives no fix: a combined view
+  // spreads over more keyframes than the newest image's own, which costs a floor whose words are
+  // weak (a held-out wood grain lost most of its day-0 fixes to it).
+  bool single_first = true;
+  void Check() const;  // throws std::invalid_argument naming the bad field
 };
+
+// A sequence query's fix (what the node and gtbow eval both do): with `single_first`, the
+// newest image's own fix when it has one, else the combined view's; without, the combined
+// view's. `single` and `combined` localize one and the other; `combined` runs only when needed.
+// *used_combined (if given) says whether the fix, or the failure, is the combined view's.
+Localization SequenceFix(const SequenceOptions& options,
+                         const std::function<Localization()>& single,
+                         const std::function<Localization()>& combined, bool* used_combined);
 
 // The robot's last few images and their odometry, for sequence queries (Localizer::Combine):
 // what the node keeps between images in localization mode. Not thread-safe.
