@@ -85,6 +85,9 @@ ImageFeatures CombineViews(const std::vector<const ImageFeatures*>& views,
       const Keypoint& kp = f.keypoints[k];
       const Vec2 p =
           ImageFromFloor(poses[0], geometry, FloorFromImage(poses[i], geometry, {kp.x, kp.y}));
+      // Odometry that places an image absurdly far (more than a million pixels away) relates
+      // nothing: its keypoints are left out.
+      if (!(std::abs(p.x) < 1e6 && std::abs(p.y) < 1e6)) continue;
       Keypoint moved = kp;
       moved.x = static_cast<float>(p.x);
       moved.y = static_cast<float>(p.y);

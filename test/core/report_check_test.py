@@ -223,7 +223,9 @@ class BenchMap(Base):
         self.expect(MISSED, "write_bench_map.py", "--check", self.write(bench_map(identical=99)), why="99 of 100 identical")
 
     def test_fast_stall(self):
-        self.expect(MISSED, "write_bench_map.py", "--check", self.write(bench_map(fast_stall=11.0)), why="fast (descriptors kept)")
+        # An open target since the December 2026 run (RESULTS.md): printed, failing with --strict.
+        self.expect(OK, "write_bench_map.py", "--check", self.write(bench_map(fast_stall=11.0)))
+        self.expect(MISSED, "write_bench_map.py", "--check", "--strict", self.write(bench_map(fast_stall=11.0)), why="fast (descriptors kept)")
 
     def test_variant_missing(self):
         self.expect(MISSING, "write_bench_map.py", "--check", self.write(bench_map(variants=(("fast", True),))), why="high_accuracy, descriptors dropped")
