@@ -548,23 +548,18 @@ void LocalizerServer::ProcessImage(const Pending& msg) {
   std::string caption = "no verified match";
   if (mode == Mode::kLocalization) {
     const std::optional<gtbow::Pose2D> odom = LookupOdometry(header);
+    // With the images just before it, related by odometry (core/sequence.h), when kept.
+    if (sequence_.options().length > 1) sequence_.Push(img, odom);
     gtbow::Localization fix;
-    if (sequence_.options().length > 1) {
-      // With the images just before it, related by odometry (core/sequence.h).
-      sequence_.Push(img, odom);
-      if (sequence_.size() > 1) {
-        bool combined = false;
-        fix = gtbow::SequenceFix(
-            sequence_.options(), [&] { return localizer_->Localize(img); },
-            [&] {
-              return localizer_->Localize(
-                  localizer_->Combine(sequence_.images(), sequence_.poses()));
-            },
-            &combined);
-        if (combined) sequence_queries_++;
-      } else {
-        fix = localizer_->Localize(img);
-      }
+    if (sequence_.size() > 1) {
+      bool combined = false;
+      fix = gtbow::SequenceFix(
+          sequence_.options(), [&] { return localizer_->Localize(img); },
+          [&] {
+            return localizer_->Localize(localizer_->Combine(sequence_.images(), sequence_.poses()));
+          },
+          &combined);
+      if (combined) sequence_queries_++;
     } else {
       fix = localizer_->Localize(img);
     }

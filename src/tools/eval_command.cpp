@@ -627,7 +627,7 @@ void RegisterEval(CLI::App& app) {
                   "Sequence queries: each query with this many images in all, itself and the "
                   "nearest of its trail (gtbow synth --query-trail), combined through their "
                   "odometry as the node's localization does; 1 = single images")
-      ->check(CLI::Range(1, 21))
+      ->check(CLI::Range(1, 20))
       ->capture_default_str();
   cmd->add_flag("--sequence-always", a->sequence_always,
                 "With --sequence, localize from the combined view only (the node's "

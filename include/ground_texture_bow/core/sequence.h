@@ -19,7 +19,7 @@ namespace gtbow {
 // localized; its keypoints first and unchanged). poses[i] is view i's pose in any common frame
 // (odometry: metres, radians, the convention of geometry.h); only poses relative to poses[0]
 // count. An older view's keypoint is left out when a keypoint already taken lies within
-// kSameKeypointRadius of it (the same place of the floor seen again: it would give one point of
+// SameKeypointRadius of it (the same place of the floor seen again: it would give one point of
 // the floor several inliers); the others, outside the newest image or where it detected nothing,
 // are added, their angles turned into views[0]'s frame. Every view has `geometry`'s size and
 // scale; descriptors are copied. Throws std::invalid_argument naming the view when the counts of

@@ -178,8 +178,8 @@ void KeepOnly(const SynthOptions& o, DatasetPlan* plan) {
   if (o.only.empty()) return;
   auto kind = [](const std::string& split) {
     if (split.rfind("drive_day", 0) == 0) return std::string("drive");
-    if (split.rfind("trail_", 0) == 0) return std::string("queries");
-    return split.rfind("query_", 0) == 0 ? std::string("queries") : split;
+    const bool query = split.rfind("query_", 0) == 0 || split.rfind("trail_", 0) == 0;
+    return query ? std::string("queries") : split;
   };
   auto wanted = [&](const std::string& split) {
     return std::find(o.only.begin(), o.only.end(), kind(split)) != o.only.end();
