@@ -33,4 +33,5 @@ args=()
 for f in "${map[@]}"; do args+=(--photo "$photos/$f"); done
 for f in "${train[@]}"; do [ -n "$f" ] && args+=(--train-photo "$photos/$f"); done
 "$gtbow" synth --out "$data" --force "${args[@]}" --width 320 --height 240 --meters-per-pixel 0.0005 \
-  --queries 40 --days 0,180 --train 300 --seed "${REAL_SEED:-1}" ${REAL_TRAIL:+--query-trail "$REAL_TRAIL"} -q
+  --queries 40 --days 0,180 --train 300 --seed "${REAL_SEED:-1}" ${REAL_TRAIL:+--query-trail "$REAL_TRAIL"} \
+  ${REAL_SESSIONS:+--session-days "$REAL_SESSIONS" --session-images "${REAL_SESSION_IMAGES:-40}"} -q

@@ -75,6 +75,11 @@ bool BowDatabase::Remove(uint32_t image) {
   return true;
 }
 
+bool BowDatabase::Contains(uint32_t image) const {
+  std::shared_lock<std::shared_mutex> lock(mutex_);
+  return image < removed_.size() && !removed_[image];
+}
+
 size_t BowDatabase::size() const {
   std::shared_lock<std::shared_mutex> lock(mutex_);
   return live_;

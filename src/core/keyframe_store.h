@@ -35,6 +35,8 @@ struct KeyframeRecord {
   uint64_t payload_offset = 0;  // in the file: from the payload section's start
   uint64_t payload_checksum = 0;
   static constexpr uint32_t kHasPose = 1;
+  static constexpr uint32_t kMaintained = 2;  // added by map maintenance (maintenance.h)
+  static constexpr uint32_t kKnownFlags = kHasPose | kMaintained;
 };
 static_assert(sizeof(KeyframeRecord) == 64, "keyframe records are 64 bytes");
 

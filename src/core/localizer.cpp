@@ -138,7 +138,7 @@ ProcessedImage Localizer::Combine(const std::vector<const ProcessedImage*>& imag
 }
 
 uint32_t Localizer::Add(const ProcessedImage& image, int64_t stamp_ns,
-                        const std::optional<Pose2D>& pose) {
+                        const std::optional<Pose2D>& pose, KeyframeSource source) {
   if (pose && !(std::isfinite(pose->x) && std::isfinite(pose->y) && std::isfinite(pose->theta))) {
     throw std::invalid_argument("keyframe pose has a non-finite value");
   }
@@ -162,6 +162,7 @@ uint32_t Localizer::Add(const ProcessedImage& image, int64_t stamp_ns,
   // Packed outside the lock: the store keeps what the file keeps.
   detail::KeyframeRecord record;
   record.stamp_ns = stamp_ns;
+  if (source == KeyframeSource::kMaintenance) record.flags |= detail::KeyframeRecord::kMaintained;
   if (pose) {
     record.flags |= detail::KeyframeRecord::kHasPose;
     record.x = pose->x;
@@ -404,6 +405,12 @@ void Localizer::Reset() {
   lock.unlock();  // the old map is freed without holding up callers
 }
 
+bool Localizer::Retire(uint32_t id) {
+  std::unique_lock<std::shared_mutex> lock(mutex_);
+  if (id >= keyframes_->size()) return false;
+  return database_->Remove(id);
+}
+
 void Localizer::SetMetersPerPixel(double meters_per_pixel) {
   if (!(meters_per_pixel > 0.0) || !std::isfinite(meters_per_pixel)) {
     throw std::invalid_argument("meters_per_pixel must be positive and finite, not " +
@@ -424,6 +431,11 @@ size_t Localizer::size() const {
   return keyframes_->size();
 }
 
+size_t Localizer::live_size() const {
+  std::shared_lock<std::shared_mutex> lock(mutex_);
+  return database_->size();
+}
+
 size_t Localizer::HeapBytes() const {
   std::shared_lock<std::shared_mutex> lock(mutex_);
   return database_->MemoryBytes() - database_->MappedBytes() + keyframes_->MemoryBytes();
@@ -431,10 +443,12 @@ size_t Localizer::HeapBytes() const {
 
 namespace {
 
-Keyframe KeyframeOf(uint32_t id, const detail::KeyframeRecord& r,
-                    const std::optional<Pose2D>& pose) {
+Keyframe KeyframeOf(uint32_t id, const detail::KeyframeRecord& r, const std::optional<Pose2D>& pose,
+                    bool retired) {
   Keyframe k;
   k.id = id;
+  k.retired = retired;
+  k.maintained = (r.flags & detail::KeyframeRecord::kMaintained) != 0;
   k.stamp_ns = r.stamp_ns;
   k.has_pose = pose.has_value();
   if (pose) k.map_from_camera = *pose;
@@ -449,7 +463,7 @@ std::optional<Keyframe> Localizer::KeyframeInfo(uint32_t id) const {
   std::shared_lock<std::shared_mutex> lock(mutex_);
   if (id >= keyframes_->size()) return std::nullopt;
   const detail::KeyframeView v = View(id);
-  Keyframe k = KeyframeOf(id, *v.record, PoseOf(id, *v.record));
+  Keyframe k = KeyframeOf(id, *v.record, PoseOf(id, *v.record), !database_->Contains(id));
   if (Damaged(id).empty()) k.keypoints = detail::PayloadKeypoints(v);
   return k;
 }
@@ -460,7 +474,7 @@ std::vector<Keyframe> Localizer::Keyframes() const {
   out.reserve(keyframes_->size());
   for (uint32_t id = 0; id < keyframes_->size(); ++id) {
     const detail::KeyframeRecord& r = *View(id).record;
-    out.push_back(KeyframeOf(id, r, PoseOf(id, r)));
+    out.push_back(KeyframeOf(id, r, PoseOf(id, r), !database_->Contains(id)));
   }
   return out;
 }

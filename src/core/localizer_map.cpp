@@ -562,7 +562,7 @@ size_t Localizer::Load(const std::filesystem::path& path, bool adopt_scale) {
     if (r.width < static_cast<uint32_t>(kMinImageSide) ||
         r.height < static_cast<uint32_t>(kMinImageSide) ||
         static_cast<double>(r.width) * r.height > kMaxImagePixels ||
-        r.num_keypoints > kMaxKeypoints || (r.flags & ~detail::KeyframeRecord::kHasPose) != 0 ||
+        r.num_keypoints > kMaxKeypoints || (r.flags & ~detail::KeyframeRecord::kKnownFlags) != 0 ||
         r.payload_offset != offset) {
       bad_record("is malformed");
     }

@@ -141,7 +141,7 @@ LocalizerServer::~LocalizerServer() {
 }
 
 void LocalizerServer::AutoSave(const char* why) {
-  if (options_.autosave_path.empty() || mode_.load() == Mode::kLocalization) return;
+  if (options_.autosave_path.empty() || mode_.load() == Mode::kLocalization) return;  // read-only
   std::lock_guard<std::mutex> one(autosave_mutex_);
   const uint64_t changes = changes_.load();
   if (changes == saved_changes_.load() || localizer_->size() == 0) return;
@@ -491,10 +491,38 @@ void LocalizerServer::KeyframePosesCallback(const ground_texture_bow::KeyframePo
       poses.push_back({msg->ids[i], ToNanoseconds(msg->stamps[i]), FromPose2DMsg(msg->poses[i])});
     }
     keyframes_reposed_ += localizer_->UpdateKeyframePoses(poses);
+    maintainer_stale_ = true;  // maintenance places by the new poses
     keyframe_poses_stamp_ns_ = msg->header.stamp.toNSec();
   } catch (const std::exception& e) {
     pose_updates_refused_++;
     ROS_WARN_THROTTLE(5.0, "ground_texture_bow: keyframe_poses ignored: %s", e.what());
+  }
+}
+
+void LocalizerServer::Maintain(const gtbow::Localization& fix, const cv::Mat& floor_image,
+                               const std_msgs::Header& header) {
+  const gtbow::ImageGeometry g{floor_image.cols, floor_image.rows, localizer_->meters_per_pixel()};
+  if (!maintainer_ || maintainer_stale_.exchange(false) || g.width != maintainer_geometry_.width ||
+      g.height != maintainer_geometry_.height ||
+      g.meters_per_pixel != maintainer_geometry_.meters_per_pixel) {
+    maintainer_ = std::make_unique<gtbow::MapMaintainer>(options_.maintenance, g);
+    maintainer_geometry_ = g;
+    gtbow::TrackMap(*localizer_, maintainer_.get());
+  }
+  const int64_t stamp = ToNanoseconds(header.stamp);
+  const gtbow::MaintenanceStep step = maintainer_->Observe(fix, stamp);
+  if (!step.add) return;
+  // The view is added as a keyframe is extracted (features.num_features), not as it was queried.
+  const std::optional<uint32_t> id = gtbow::ApplyMaintenance(
+      step, fix, localizer_->Process(floor_image, gtbow::Localizer::ImageUse::kKeyframe), stamp,
+      localizer_.get(), maintainer_.get());
+  keyframes_retired_ += step.retire.size();
+  if (id) {
+    views_added_++;
+    changes_++;  // autosave
+    ROS_DEBUG(
+        "ground_texture_bow: maintenance: view added as keyframe %u (%d inliers), %zu retired", *id,
+        fix.estimate.inliers, step.retire.size());
   }
 }
 
@@ -540,13 +568,14 @@ void LocalizerServer::ProcessImage(const Pending& msg) {
       pose = LookupFootprint(header.frame_id, header.stamp, options_.map_frame, true);
     }
   }
-  // Localization mode only queries (features.query_num_features); mapping adds the image.
-  const gtbow::ProcessedImage img = localizer_->Process(
-      floor_image, mode == Mode::kLocalization ? gtbow::Localizer::ImageUse::kQuery
-                                               : gtbow::Localizer::ImageUse::kKeyframe);
+  // Localization (and maintenance) only queries (features.query_num_features); mapping adds
+  // the image.
+  const gtbow::ProcessedImage img =
+      localizer_->Process(floor_image, Localizes(mode) ? gtbow::Localizer::ImageUse::kQuery
+                                                       : gtbow::Localizer::ImageUse::kKeyframe);
   std::vector<gtbow::Vec2> inliers;
   std::string caption = "no verified match";
-  if (mode == Mode::kLocalization) {
+  if (Localizes(mode)) {
     const std::optional<gtbow::Pose2D> odom = LookupOdometry(header);
     // With the images just before it, related by odometry (core/sequence.h), when kept.
     if (sequence_.options().length > 1) sequence_.Push(img, odom);
@@ -592,6 +621,7 @@ void LocalizerServer::ProcessImage(const Pending& msg) {
         inliers = fix.inlier_pixels;
         caption = "fix from keyframe " + std::to_string(fix.image) + ", " +
                   std::to_string(fix.estimate.inliers) + " inliers";
+        if (mode == Mode::kMaintenance) Maintain(fix, floor_image, header);
       }
     } else {
       failed_fixes_++;
@@ -735,7 +765,7 @@ void LocalizerServer::Diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat
                      ", rejected requests: " + std::to_string(recent_requests) +
                      ", missing transforms: " + std::to_string(recent_missing) +
                      ", unusable transforms: " + std::to_string(recent_unusable));
-  } else if (mode == Mode::kLocalization && !localized) {
+  } else if (Localizes(mode) && !localized) {
     stat.summary(diagnostic_msgs::DiagnosticStatus::WARN, "not localized");
   } else {
     stat.summary(diagnostic_msgs::DiagnosticStatus::OK, ModeName(mode));
@@ -743,7 +773,7 @@ void LocalizerServer::Diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat
   stat.add("mode", ModeName(mode));
   stat.add("input rate (Hz)", input_rate_hz_.load());
   stat.add("processing time (ms)", last_processing_ms_.load());
-  stat.add("database size", localizer_->size());
+  stat.add("database size", localizer_->live_size());
   stat.add("images received", received_.load());
   stat.add("images processed", processed_.load());
   stat.add("images dropped", dropped_.load());
@@ -758,6 +788,8 @@ void LocalizerServer::Diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat
   stat.add("fixes held (odometry gate)", held_fixes_.load());
   stat.add("relocalizations", relocalizations_.load());
   stat.add("sequence_queries", sequence_queries_.load());
+  stat.add("maintenance: views added", views_added_.load());
+  stat.add("maintenance: keyframes retired", keyframes_retired_.load());
   stat.add("images rectified", rectified_.load());
   stat.add("pose frame", localizer_->pose_frame() +
                              (localizer_->poses_optimised() ? " (optimised by a backend)" : ""));

@@ -36,6 +36,7 @@ void LocalizerServer::ForgetMapState() {
     edges_.clear();
   }
   mapper_->Reset();
+  maintainer_stale_ = true;  // maintenance tracks the new map's keyframes
   std::lock_guard<std::mutex> lock(gate_mutex_);
   gate_.Reset();  // another map: another map -> odom
 }
@@ -73,6 +74,7 @@ bool LocalizerServer::OnAddKeyframe(ground_texture_bow::AddKeyframe::Request& re
     const gtbow::ProcessedImage img = localizer_->Process(ToFloorImage(req.image));
     res.id = localizer_->Add(img, ToNanoseconds(req.image.header.stamp), pose);
     changes_++;
+    maintainer_stale_ = true;
     return MakeStatus(Status::OK, "keyframe " + std::to_string(res.id) + " with " +
                                       std::to_string(img.features.size()) + " keypoints");
   });
@@ -156,7 +158,7 @@ bool LocalizerServer::OnGetInfo(ground_texture_bow::GetInfo::Request&,
                                 ground_texture_bow::GetInfo::Response& res) {
   res.status = Serve("get_info", false, [&] {
     res.mode = ModeName(mode_.load());
-    res.database_size = static_cast<uint32_t>(localizer_->size());
+    res.database_size = static_cast<uint32_t>(localizer_->live_size());  // retired: not counted
     res.vocabulary_size = localizer_->vocabulary().size();
     res.vocabulary_path = localizer_->vocabulary_path();
     res.preset = options_.preset;
@@ -191,6 +193,7 @@ bool LocalizerServer::OnSetMode(ground_texture_bow::SetMode::Request& req,
                                 ground_texture_bow::SetMode::Response& res) {
   res.status = Serve("set_mode", true, [&] {
     const Mode m = ParseMode(req.mode);
+    maintainer_stale_ = true;  // keyframes mapped before the switch are tracked
     res.previous_mode = ModeName(mode_.exchange(m));
     return MakeStatus(Status::OK, "mode " + req.mode);
   });

@@ -14,7 +14,8 @@ namespace gtbow_ros {
 namespace {
 constexpr gtbow::EnumName<Mode> kModes[] = {{"mapping", Mode::kMapping},
                                             {"localization", Mode::kLocalization},
-                                            {"external", Mode::kExternal}};
+                                            {"external", Mode::kExternal},
+                                            {"maintenance", Mode::kMaintenance}};
 }  // namespace
 
 Mode ParseMode(const std::string& name) { return gtbow::ParseEnumName(name, "mode", kModes); }
@@ -76,6 +77,7 @@ void ServerOptions::Check() const {
   try {
     gate.Check();
     sequence.Check();
+    maintenance.Check();
   } catch (const std::invalid_argument& e) {
     throw std::invalid_argument(std::string("parameter ~") + e.what());
   }
@@ -125,6 +127,15 @@ ServerOptions ReadOptions(const ros::NodeHandle& pnh) {
   pnh.param("sequence_length", o.sequence.length, o.sequence.length);
   pnh.param("sequence_max_span", o.sequence.max_span, o.sequence.max_span);
   pnh.param("sequence_single_first", o.sequence.single_first, o.sequence.single_first);
+  pnh.param("maintenance_refresh_below_inliers", o.maintenance.refresh_below_inliers,
+            o.maintenance.refresh_below_inliers);
+  pnh.param("maintenance_min_inliers", o.maintenance.min_inliers, o.maintenance.min_inliers);
+  pnh.param("maintenance_max_theta_sigma", o.maintenance.max_theta_sigma,
+            o.maintenance.max_theta_sigma);
+  pnh.param("maintenance_place_fraction", o.maintenance.place_fraction,
+            o.maintenance.place_fraction);
+  pnh.param("maintenance_views_per_place", o.maintenance.max_views_per_place,
+            o.maintenance.max_views_per_place);
   pnh.param("diagnostics_window", o.diagnostics_window, o.diagnostics_window);
   pnh.param("autosave_path", o.autosave_path, o.autosave_path);
   pnh.param("autosave_period", o.autosave_period, o.autosave_period);

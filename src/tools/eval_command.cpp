@@ -25,6 +25,7 @@
 #include "ground_texture_bow/core/database.h"
 #include "ground_texture_bow/core/file_util.h"
 #include "ground_texture_bow/core/localizer.h"
+#include "ground_texture_bow/core/maintenance.h"
 #include "ground_texture_bow/core/parallel.h"
 #include "ground_texture_bow/core/pose.h"
 #include "ground_texture_bow/core/progress.h"
@@ -139,6 +140,87 @@ QueryTrails ReadTrails(const EvalArgs& a, const Dataset& ds, const std::string& 
   return t;
 }
 
+// --maintain: the map kept up by the robot's sessions (maintenance.h), as the node's
+// maintenance mode does it: each session image, in order, localized as a query against the map
+// as it is then; the maintainer's step applied (keyframes retired, the view added as a keyframe,
+// extracted as one, at its fix). The splits are then evaluated against the maintained map.
+MaintenanceResult Maintain(const EvalArgs& a, const RetrievalConfig& c, const BowEncoder& enc,
+                           const Dataset& ds, const ImageGeometry& geo, const MapAccess& map,
+                           BowDatabase* db, std::vector<ImageFeatures>* db_feats,
+                           std::vector<std::vector<Keypoint>>* stored, std::vector<Pose2D>* db_pose,
+                           std::vector<Pose2D>* map_pose, std::vector<std::string>* db_names,
+                           std::vector<char>* db_live) {
+  const fs::path cache = a.no_cache ? fs::path() : fs::path(a.cache);
+  MaintenanceResult mr;
+  mr.options = a.maintenance;
+  MapMaintainer maintainer(a.maintenance, geo);
+  for (uint32_t id = 0; id < map_pose->size(); ++id)
+    maintainer.Track(id, (*map_pose)[id], 0, false);
+  constexpr double kNsPerDay = 86400e9;
+  for (const std::string& split : a.maintain) {
+    MaintenanceSession ms;
+    ms.split = split;
+    ms.day = SplitDay(ds.info(), split);
+    if (!(ms.day >= 0)) {
+      throw std::invalid_argument(
+          "--maintain: split " + split +
+          " has no day (query_days in dataset.yaml, or dayNNN in its name)");
+    }
+    const ImageSource src = ImageSource::FromDataset(a.dataset, split);
+    const auto q_feats =
+        ExtractAllCached(src, QueryFeatureOptions(c.features), cache, a.threads, !a.quiet);
+    const auto k_feats = ExtractAllCached(src, c.features, cache, a.threads, !a.quiet);
+    const auto q_vecs = EncodeAll(enc, q_feats, a.threads, !a.quiet);
+    const auto k_vecs = EncodeAll(enc, k_feats, a.threads, !a.quiet);
+    ProgressBar bar("maintain " + split, src.size(), !a.quiet);
+    for (size_t i = 0; i < src.size(); ++i) {
+      const auto stamp = static_cast<int64_t>(ms.day * kNsPerDay) + static_cast<int64_t>(i);
+      const Pose2D truth = ds.PoseOf(src.name(i));
+      const auto candidates =
+          db->Query(q_vecs[i], static_cast<size_t>(c.verification.candidates), true);
+      const Localization fix = VerifyCandidates(candidates, q_vecs[i], map, geo, c.verification);
+      ++ms.images;
+      if (fix.success) {
+        ++ms.fixes;
+        ms.correct += IsCorrectPose(fix.estimate.floor_from_query, truth) ? 1 : 0;
+      }
+      const MaintenanceStep step = maintainer.Observe(fix, stamp);
+      for (uint32_t id : step.retire) {
+        db->Remove(id);
+        (*db_live)[id] = 0;
+        ++ms.retired;
+      }
+      if (!step.add) {
+        bar.Add();
+        continue;
+      }
+      const Pose2D& p = fix.estimate.floor_from_query;
+      const uint32_t id = db->Add(k_vecs[i]);
+      db_feats->push_back(k_feats[i]);
+      if (!a.exact_keypoints) {
+        stored->push_back(StoredKeypoints(k_feats[i].keypoints, geo.width, geo.height));
+      }
+      db_pose->push_back(truth);
+      map_pose->push_back(p);
+      db_names->push_back(src.name(i));
+      db_live->push_back(1);
+      if (id + 1 != db_pose->size())
+        throw std::logic_error("eval --maintain: keyframe ids out of step");
+      maintainer.Track(id, p, stamp, true);
+      ++ms.added;
+      const double err = 1000.0 * std::hypot(p.x - truth.x, p.y - truth.y);
+      ms.added_error_mm.push_back(err);
+      ms.added_error_deg.push_back(std::abs(WrapAngle(p.theta - truth.theta)) * 180.0 / M_PI);
+      ms.added_wrong += IsCorrectPose(p, truth) ? 0 : 1;
+      bar.Add();
+    }
+    bar.Finish();
+    ms.keyframes_after = db->size();
+    mr.sessions.push_back(ms);
+  }
+  return mr;
+}
+
 PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const Dataset& ds,
                         const std::vector<std::string>& splits, std::string* rankings,
                         std::string* poses, std::string* verifications) {
@@ -160,7 +242,7 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
   vocab->set_search_bound(c.vocabulary.ivf_bound);
   const BowEncoder enc(*vocab, c.bow);
   ImageSource db_src = ImageSource::FromDataset(a.dataset, "database");
-  const auto db_feats = ExtractAllCached(db_src, c.features, cache, a.threads, !a.quiet);
+  auto db_feats = ExtractAllCached(db_src, c.features, cache, a.threads, !a.quiet);
   const auto db_vecs = EncodeAll(enc, db_feats, a.threads, !a.quiet);
   // Query images of every split, extracted (or read from the cache) before the database grows.
   std::vector<ImageSource> q_sources;
@@ -243,8 +325,18 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
     return a.exact_keypoints ? db_feats.at(i).keypoints : stored.at(i);
   };
   map.descriptors = [&](uint32_t i) { return db_feats.at(i).descriptors; };
-  map.pose = [&](uint32_t i) { return db_pose.at(i); };
+  // The poses localization reads: the truth for the database, the fix for a view a maintained
+  // map added (db_pose keeps every keyframe's truth, for relevance).
+  std::vector<Pose2D> map_pose = db_pose;
+  map.pose = [&](uint32_t i) { return map_pose.at(i); };
+  std::vector<std::string> db_names;
+  for (size_t i = 0; i < db_src.size(); ++i) db_names.push_back(db_src.name(i));
+  std::vector<char> db_live(db_pose.size(), 1);  // 0: retired by maintenance
   const LocalizationOptions& lo = c.verification;
+  if (!a.maintain.empty()) {
+    pr.maintenance = Maintain(a, c, enc, ds, geo, map, &db, &db_feats, &stored, &db_pose, &map_pose,
+                              &db_names, &db_live);
+  }
 
   // Retrieval and localization, split by split.
   for (size_t si = 0; si < splits.size(); ++si) {
@@ -273,7 +365,9 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
       PerQuery& p = per[qi];
       p.truth = ds.PoseOf(q_src.name(qi));
       size_t num_rel = 0;
-      for (const auto& dp : db_pose) num_rel += IsRelevant(p.truth, dp, geo) ? 1 : 0;
+      for (size_t d = 0; d < db_pose.size(); ++d) {
+        num_rel += db_live[d] && IsRelevant(p.truth, db_pose[d], geo) ? 1 : 0;
+      }
       p.ranking = db.Query(q_vecs[qi], 1000, false);
       // Localization as the node does it, then every candidate of the top K verified on its
       // own (with the consensus, when on), to count wrong poses among all of them.
@@ -304,8 +398,8 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
                       "%s,%s,%s,%zu,%s,%.6g,%d,%d,%.4g,%.4g,%.4g,%d,%.4g,%.4g,%.4g,%d,%.6f,%.6f,"
                       "%.6f,%.6f,%.6f,%.6f\n",
                       pr.name.c_str(), split.c_str(), q_src.name(qi).c_str(), rank + 1,
-                      db_src.name(candidates[rank].image).c_str(), candidates[rank].score,
-                      e.matches, e.inliers, e.residual_rms, e.spread, e.theta_sigma * 180.0 / M_PI,
+                      db_names[candidates[rank].image].c_str(), candidates[rank].score, e.matches,
+                      e.inliers, e.residual_rms, e.spread, e.theta_sigma * 180.0 / M_PI,
                       e.second_inliers, e.angle_agreement,
                       1000.0 * std::hypot(f.x - p.truth.x, f.y - p.truth.y),
                       std::abs(WrapAngle(f.theta - p.truth.theta)) * 180.0 / M_PI, wrong ? 1 : 0,
@@ -377,8 +471,8 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
       const std::string& qn = q_src.name(qi);
       char b[256];
       for (size_t k = 0; k < p.ranking.size(); ++k) {
-        std::snprintf(b, sizeof(b), ",%zu,%s,%.9g\n", k + 1,
-                      db_src.name(p.ranking[k].image).c_str(), p.ranking[k].score);
+        std::snprintf(b, sizeof(b), ",%zu,%s,%.9g\n", k + 1, db_names[p.ranking[k].image].c_str(),
+                      p.ranking[k].score);
         *rankings += qn + b;
       }
       if (p.loc.success) {
@@ -522,6 +616,8 @@ void RunEval(const EvalArgs& a) {
     throw std::runtime_error(a.dataset + ": no query splits (sequences/query*.txt)");
   (void)ds.Split("database");  // a clear error now rather than after training
   for (const auto& s : splits) (void)ds.Split(s);
+  for (const auto& s : a.maintain) (void)ds.Split(s);
+  if (!a.maintain.empty()) a.maintenance.Check();
   std::vector<std::string> presets = a.presets;
   std::vector<std::string> rows(presets.size());
   if (a.ablation) {
@@ -628,6 +724,23 @@ void RegisterEval(CLI::App& app) {
                   "nearest of its trail (gtbow synth --query-trail), combined through their "
                   "odometry as the node's localization does; 1 = single images")
       ->check(CLI::Range(1, 20))
+      ->capture_default_str();
+  cmd->add_option("--maintain", a->maintain,
+                  "A maintained map: these splits (a robot's sessions, in order; gtbow synth "
+                  "--session-days) localize against the map first and keep it up as the node's "
+                  "maintenance mode does; the query splits then query the maintained map")
+      ->delimiter(',');
+  cmd->add_option("--maintain-refresh", a->maintenance.refresh_below_inliers,
+                  "Maintenance: a fix with fewer inliers adds its view as a keyframe")
+      ->capture_default_str();
+  cmd->add_option("--maintain-min-inliers", a->maintenance.min_inliers,
+                  "Maintenance: inliers a fix needs to place a keyframe")
+      ->capture_default_str();
+  cmd->add_option("--maintain-max-theta-sigma", a->maintenance.max_theta_sigma,
+                  "Maintenance: radians of rotation uncertainty a fix may have to place a keyframe")
+      ->capture_default_str();
+  cmd->add_option("--maintain-views", a->maintenance.max_views_per_place,
+                  "Maintenance: maintained views a place keeps (besides the map's own keyframes)")
       ->capture_default_str();
   cmd->add_flag("--sequence-always", a->sequence_always,
                 "With --sequence, localize from the combined view only (the node's "

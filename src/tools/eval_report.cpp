@@ -103,6 +103,31 @@ std::string ToJson(const EvalArgs& a, const Dataset& ds, const std::vector<Prese
     j.Key("verification").Str(FormatVerificationOptions(pr.config.verification));
     j.Key("localization_candidates").Int(pr.config.verification.candidates);
     j.Key("database_images").Int(static_cast<long long>(pr.db_images));
+    if (!a.maintain.empty()) {
+      const MaintenanceOptions& mo = pr.maintenance.options;
+      j.Key("maintenance").Open('{');
+      j.Key("refresh_below_inliers").Int(mo.refresh_below_inliers);
+      j.Key("min_inliers").Int(mo.min_inliers).Key("place_fraction").Num(mo.place_fraction);
+      j.Key("max_views_per_place")
+          .Int(mo.max_views_per_place)
+          .Key("max_theta_sigma")
+          .Num(mo.max_theta_sigma);
+      j.Key("sessions").Open('[');
+      for (const MaintenanceSession& ms : pr.maintenance.sessions) {
+        j.Open('{').Key("split").Str(ms.split).Key("day").Num(ms.day);
+        j.Key("images").Int(static_cast<long long>(ms.images));
+        j.Key("fixes").Int(static_cast<long long>(ms.fixes));
+        j.Key("correct").Int(static_cast<long long>(ms.correct));
+        j.Key("added").Int(static_cast<long long>(ms.added));
+        j.Key("retired").Int(static_cast<long long>(ms.retired));
+        j.Key("added_wrong").Int(static_cast<long long>(ms.added_wrong));
+        j.Key("added_error_mm").Nums(ms.added_error_mm);
+        j.Key("added_error_deg").Nums(ms.added_error_deg);
+        j.Key("keyframes_after").Int(static_cast<long long>(ms.keyframes_after));
+        j.Close('}');
+      }
+      j.Close(']').Close('}');
+    }
     j.Key("splits").Open('[');
     for (const auto& s : pr.splits) {
       j.Open('{');

@@ -8,6 +8,7 @@
 
 #include "ground_texture_bow/core/config.h"
 #include "ground_texture_bow/core/geometry.h"
+#include "ground_texture_bow/core/maintenance.h"
 #include "ground_texture_bow/core/pose.h"
 #include "ground_texture_bow/eval/dataset.h"
 #include "ground_texture_bow/eval/metrics.h"
@@ -57,6 +58,10 @@ struct EvalArgs {
   // --query-trail), combined through their odometry (Localizer::Combine); 1 = single images.
   int sequence = 1;
   bool sequence_always = false;  // the combined view only, not the query alone first
+  // A maintained map: these splits (sessions, in order) localize against the map and keep it up
+  // (maintenance.h) before the query splits are evaluated; empty = the map as built.
+  std::vector<std::string> maintain;
+  MaintenanceOptions maintenance;
   int threads = 0;
   std::string cache = DefaultCacheDir().string();
   bool no_cache = false;
@@ -100,6 +105,23 @@ struct ScalingPoint {
   TimingStats query;   // kScalingQueries queries with matches, top K
 };
 
+// One maintenance session of --maintain.
+struct MaintenanceSession {
+  std::string split;
+  double day = NAN;
+  size_t images = 0, fixes = 0, correct = 0;  // its localization against the map as it was
+  size_t added = 0, retired = 0;              // keyframes
+  size_t added_wrong = 0;                     // added at a pose outside the success tolerance
+  std::vector<double> added_error_mm;         // each added keyframe's position error
+  std::vector<double> added_error_deg;        // and heading error
+  size_t keyframes_after = 0;                 // live keyframes after the session
+};
+
+struct MaintenanceResult {
+  MaintenanceOptions options;
+  std::vector<MaintenanceSession> sessions;
+};
+
 struct PresetResult {
   std::vector<ScalingPoint> scaling;
   std::string name, file;
@@ -116,6 +138,7 @@ struct PresetResult {
   size_t timed = 0;
   size_t db_images = 0;
   RetrievalConfig config;
+  MaintenanceResult maintenance;  // --maintain
 };
 
 // results.json: every number; summary.md: ours next to the paper's.

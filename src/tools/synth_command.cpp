@@ -168,6 +168,14 @@ void RegisterSynth(CLI::App& app) {
       ->capture_default_str();
   cmd->add_option("--trail-spacing", o.trail_spacing, "Metres between a query's trail images")
       ->capture_default_str();
+  cmd->add_option("--session-days", o.session_days,
+                  "Also render a robot's localization sessions on these days (split "
+                  "session_dayDDD: random poses over each photo or the query area, the floor aged "
+                  "to that day), for a maintained map (gtbow eval --maintain)")
+      ->delimiter(',');
+  cmd->add_option("--session-images", o.session_images,
+                  "Images per session (per photo on a photo floor); 0: as --queries")
+      ->capture_default_str();
   cmd->add_option("--odom-scale-bias", o.odometry.scale_bias,
                   "Odometry: systematic distance scale error, fraction")
       ->capture_default_str();

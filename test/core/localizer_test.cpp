@@ -3,6 +3,7 @@
 // file that survives a round trip and refuses damage.
 #include "ground_texture_bow/core/localizer.h"
 
+#include <algorithm>
 #include <array>
 #include <cctype>
 #include <chrono>
@@ -20,6 +21,7 @@
 #include "../fuzz/fuzz_util.h"
 #include "ground_texture_bow/core/binary_io.h"
 #include "ground_texture_bow/core/file_util.h"
+#include "ground_texture_bow/core/maintenance.h"
 #include "ground_texture_bow/eval/synth/generator.h"
 #include "map_v1.h"
 #include "test_scene.h"
@@ -570,6 +572,78 @@ TEST_F(LocalizerFiles, MappingContinuesOnALoadedMapAndAcrossSaves) {
   third.Load(dir() / "full.gtmap");
   EXPECT_EQ(third.size(), s.db_images.size() + 1);
   ExpectSameAnswers(again, third, "saved over its own file");
+}
+
+// Maintenance (maintenance.h) as the node applies it: every fix adds its view here (the refresh
+// threshold is out of reach), a place keeps one view besides the map's keyframes, so the
+// revisits retire views; a retired keyframe is never retrieved again, is flagged, and stays
+// retired in a saved map; the map's own keyframes are never retired.
+TEST_F(LocalizerFiles, AMaintainedMapAddsViewsRetiresKeyframesAndSavesBoth) {
+  const Scene& s = TheScene();
+  const auto loc = Mapped(true);
+  MaintenanceOptions mo;
+  mo.refresh_below_inliers = 100000;
+  mo.max_views_per_place = 1;
+  mo.place_fraction = 0.6;  // 72 mm: revisits of neighbours 64 mm apart share places
+  MapMaintainer m(mo, {s.db_images[0].cols, s.db_images[0].rows, s.so.camera.meters_per_pixel});
+  TrackMap(*loc, &m);
+  EXPECT_EQ(m.tracked(), s.db_images.size());
+  std::vector<uint32_t> retired, added;
+  for (size_t q = 0; q < s.revisits.size(); ++q) {
+    const int64_t stamp = 5000 + static_cast<int64_t>(q);
+    const Localization fix =
+        loc->Localize(loc->Process(s.revisits[q], Localizer::ImageUse::kQuery));
+    ASSERT_TRUE(fix.success) << fix.reason;
+    const MaintenanceStep step = m.Observe(fix, stamp);
+    ASSERT_TRUE(step.add) << step.reason;
+    const std::optional<uint32_t> id =
+        ApplyMaintenance(step, fix, loc->Process(s.revisits[q]), stamp, loc.get(), &m);
+    ASSERT_TRUE(id.has_value());
+    added.push_back(*id);
+    EXPECT_EQ(loc->KeyframeInfo(*id)->map_from_camera.x, fix.estimate.floor_from_query.x);
+    for (uint32_t r : step.retire) {
+      EXPECT_FALSE(loc->Retire(r)) << "retired twice";
+      retired.push_back(r);
+    }
+  }
+  ASSERT_FALSE(retired.empty()) << "no place was full";
+  EXPECT_EQ(loc->live_size(), loc->size() - retired.size());
+  EXPECT_EQ(m.tracked(), loc->live_size());
+  auto is_retired = [&](uint32_t id) {
+    return std::find(retired.begin(), retired.end(), id) != retired.end();
+  };
+  for (const Keyframe& k : loc->Keyframes()) {
+    EXPECT_EQ(k.retired, is_retired(k.id)) << k.id;
+    EXPECT_EQ(k.maintained, k.id >= s.db_images.size()) << k.id;
+    if (!k.maintained) EXPECT_FALSE(k.retired) << "the map's own keyframe " << k.id;
+  }
+  size_t from_added = 0;
+  for (size_t q = 0; q < s.revisits.size(); ++q) {
+    const ProcessedImage img = loc->Process(s.revisits[q], Localizer::ImageUse::kQuery);
+    for (const Candidate& c : loc->Query(img, 20, false)) EXPECT_FALSE(is_retired(c.id)) << c.id;
+    const Localization again = loc->Localize(img);
+    ASSERT_TRUE(again.success);
+    EXPECT_FALSE(is_retired(again.image));
+    from_added += again.image >= s.db_images.size() ? 1 : 0;
+  }
+  // The views added on day 30 give most day-30 fixes now (this one's or a neighbour's).
+  EXPECT_GT(2 * from_added, s.revisits.size());
+  loc->Save(dir() / "maintained.gtmap");
+  Localizer loaded(s.vocabulary, "test.gtvoc", Options());
+  loaded.Load(dir() / "maintained.gtmap");
+  EXPECT_EQ(loaded.live_size(), loc->live_size());
+  for (const Keyframe& k : loaded.Keyframes()) {
+    EXPECT_EQ(k.retired, is_retired(k.id)) << k.id;
+    EXPECT_EQ(k.maintained, k.id >= s.db_images.size()) << k.id;
+  }
+  EXPECT_TRUE(loaded.KeyframeInfo(retired[0])->retired);
+  MapMaintainer resumed(mo,
+                        {s.db_images[0].cols, s.db_images[0].rows, s.so.camera.meters_per_pixel});
+  TrackMap(loaded, &resumed);  // a node resuming maintenance on the saved map
+  EXPECT_EQ(resumed.tracked(), loaded.live_size());
+  EXPECT_FALSE(loaded.Retire(retired[0]));
+  EXPECT_FALSE(loaded.Retire(static_cast<uint32_t>(loaded.size())));
+  ExpectSameAnswers(*loc, loaded, "a maintained map saved and loaded");
 }
 
 // A map of format version 1 is refused by Load with the command that converts it; converted

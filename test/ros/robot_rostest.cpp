@@ -222,6 +222,41 @@ TEST(Robot, BaseFixesFromCameraInfoAndTfHeldWrongFixesAndAKidnappedRobot) {
     EXPECT_GE(seq_good, static_cast<int>(std::ceil(0.95 * static_cast<double>(frames.size()))));
   }
 
+  // 1c. Maintenance mode: every published fix adds its view at the fix (the refresh threshold
+  //     is out of reach here), the map is saved as in mapping, and a view added gives the fix
+  //     of its own image afterwards. Localization mode's map (1.) did not change.
+  {
+    ground_texture_bow::LoadMap m_load;
+    m_load.request.path = save.request.path;
+    ASSERT_EQ(Call("/maintainer/load_map", m_load).response.status.code, Status::OK);
+    const uint32_t mapped = Info("/maintainer").database_size;
+    Collector<geometry_msgs::PoseWithCovarianceStamped> m_topic("/maintainer/pose");
+    ros::WallDuration(0.5).sleep();
+    const auto frames = RobotFrames(later, drift_a, ros::Time::now());
+    Replay(frames, "/maint_camera/image_raw", "/maintainer", 4.0);
+    const auto m_info = Info("/maintainer");
+    const size_t published = m_topic.Get().size();
+    EXPECT_GE(published, frames.size() - 1);
+    // Views of one place retire each other (three per place), the map's keyframes stay.
+    EXPECT_GT(m_info.database_size, mapped);
+    EXPECT_LE(m_info.database_size, mapped + published);
+    EXPECT_EQ(Info("/localizer").database_size, mapped) << "localization mode adds nothing";
+    ground_texture_bow::SaveMap m_save;
+    m_save.request.path = (dir / "maintained.gtmap").string();
+    ASSERT_EQ(Call("/maintainer/save_map", m_save).response.status.code, Status::OK);
+    const gtbow::MapFileInfo saved_info = gtbow::Localizer::ReadMapInfo(m_save.request.path);
+    // Every view added has its record, retired ones too (ids are not reused).
+    EXPECT_GE(saved_info.keyframes, m_info.database_size);
+    EXPECT_LE(saved_info.keyframes, mapped + published);
+    ground_texture_bow::Localize own;
+    own.request.image = *frames.back().image;
+    own = Call("/maintainer/localize", own);
+    ASSERT_EQ(own.response.status.code, Status::OK) << own.response.status.message;
+    EXPECT_GE(own.response.keyframe_id, mapped) << "a maintained view gives the fix";
+    std::printf("maintenance: %zu fixes, %u keyframes live of %lu (%u mapped)\n", published,
+                m_info.database_size, static_cast<unsigned long>(saved_info.keyframes), mapped);
+  }
+
   // 2. A wrong fix: the image of one place while odometry says the robot is at another, 15 cm
   //    or more away. It is held, and map -> odom does not move.
   size_t far = 1;

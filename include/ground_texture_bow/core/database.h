@@ -79,6 +79,8 @@ class BowDatabase {
   uint32_t Add(const BowVector& vector);
   // Removes an image; its id is not reused. Returns false for an unknown or removed id.
   bool Remove(uint32_t image);
+  // Whether an id was handed out and not removed.
+  bool Contains(uint32_t image) const;
   // The `top_n` most similar images, best first. With `with_matches` each result lists the
   // matched keypoint pairs of its winning orientation bin.
   std::vector<QueryResult> Query(const BowVector& query, size_t top_n,

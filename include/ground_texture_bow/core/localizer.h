@@ -65,6 +65,8 @@ struct Keyframe {
   Pose2D map_from_camera;
   int width = 0;  // image size, pixels
   int height = 0;
+  bool maintained = false;          // added by map maintenance (KeyframeSource::kMaintenance)
+  bool retired = false;             // Localizer::Retire took it out of the index
   std::vector<Keypoint> keypoints;  // as the map stores them (StoredKeypoints)
 };
 
@@ -172,8 +174,13 @@ class Localizer {
   // width x height pixels. Throws std::invalid_argument for sizes Process refuses.
   ProcessedImage Encode(ImageFeatures features, int width, int height) const;
 
+  // Where a keyframe comes from: mapping (the node's mapping mode, gtbow map, gtbow slam), or a
+  // maintained map's view of a changed floor placed at its fix (maintenance.h). Saved maps
+  // record it (a map with maintained keyframes needs a build of this version or later).
+  enum class KeyframeSource { kMapping, kMaintenance };
   // Inserts a keyframe; returns its id.
-  uint32_t Add(const ProcessedImage& image, int64_t stamp_ns, const std::optional<Pose2D>& pose);
+  uint32_t Add(const ProcessedImage& image, int64_t stamp_ns, const std::optional<Pose2D>& pose,
+               KeyframeSource source = KeyframeSource::kMapping);
 
   // The top `k` keyframes for an image, best first, optionally verified (relative poses).
   // Keyframes with ids in [exclude_from, exclude_to) are skipped (e.g. the query's own
@@ -225,6 +232,12 @@ class Localizer {
 
   void Reset();  // forgets every keyframe
 
+  // Takes a keyframe out of the index (a maintained map's keyframe that a newer view of its place
+  // replaced, maintenance.h): no query returns it again, and saved maps record it as retired.
+  // Its id is not reused, and its record stays in the map file (KeyframeInfo still reads it,
+  // with `retired`). Returns false for an unknown or already retired id.
+  bool Retire(uint32_t id);
+
   // The poses a SLAM backend's optimisation gives the keyframes, in the map's pose frame: each
   // keyframe named by id and stamp gets its new pose (an entry whose id is unknown or whose stamp
   // differs is skipped). Later updates replace earlier ones; Save writes the poses as updated and
@@ -246,7 +259,8 @@ class Localizer {
   // std::logic_error when keyframes made at another scale are in the map.
   void SetMetersPerPixel(double meters_per_pixel);
 
-  size_t size() const;                                      // keyframes
+  size_t size() const;       // keyframes, retired ones included (ids run from 0 to size() - 1)
+  size_t live_size() const;  // keyframes not retired
   std::optional<Keyframe> KeyframeInfo(uint32_t id) const;  // a copy
   std::vector<Keyframe> Keyframes() const;                  // every keyframe, without features
   const Vocabulary& vocabulary() const { return *vocabulary_; }

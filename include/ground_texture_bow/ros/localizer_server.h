@@ -193,7 +193,7 @@ class LocalizerServer {
   std::atomic<uint64_t> received_{0}, processed_{0}, dropped_{0}, rejected_{0}, debug_images_{0},
       rejected_requests_{0}, missing_tf_{0}, fixes_{0}, loop_closures_{0}, failed_fixes_{0},
       held_closures_{0}, held_fixes_{0}, relocalizations_{0}, sequence_queries_{0}, unusable_tf_{0},
-      keyframes_reposed_{0}, pose_updates_refused_{0},
+      views_added_{0}, keyframes_retired_{0}, keyframes_reposed_{0}, pose_updates_refused_{0},
       keyframe_poses_stamp_ns_{0};           // header stamp of the newest keyframe_poses applied
   std::atomic<bool> scale_known_{false};     // explicit, from the map, or from camera_info
   std::atomic<bool> scale_from_map_{false};  // a loaded map's: the camera is checked against it
@@ -223,6 +223,14 @@ class LocalizerServer {
   std::atomic<uint64_t> rectified_{0};
 
   gtbow::QuerySequence sequence_;  // localization mode's last images; worker only
+  // Maintenance mode (core/maintenance.h): made from the map on the first fix, made again when
+  // the map is replaced (maintainer_stale_) or the image size or scale changes; worker only.
+  std::unique_ptr<gtbow::MapMaintainer> maintainer_;
+  gtbow::ImageGeometry maintainer_geometry_;
+  std::atomic<bool> maintainer_stale_{true};
+  // The view of a published fix, kept up in maintenance mode; worker only.
+  void Maintain(const gtbow::Localization& fix, const cv::Mat& floor_image,
+                const std_msgs::Header& header);
   std::mutex gate_mutex_;
   gtbow::OdometryGate gate_;  // guarded by gate_mutex_
   ros::Time last_tf_stamp_;   // of the last map -> odom sent; guarded by gate_mutex_

@@ -8,13 +8,18 @@
 #include <ros/ros.h>
 
 #include "ground_texture_bow/core/localizer.h"
+#include "ground_texture_bow/core/maintenance.h"
 #include "ground_texture_bow/core/mapper.h"
 #include "ground_texture_bow/core/odometry_gate.h"
 #include "ground_texture_bow/core/sequence.h"
 
 namespace gtbow_ros {
 
-enum class Mode { kMapping, kLocalization, kExternal };
+// kMaintenance: localization that keeps the map up with a floor that changes (core/maintenance.h);
+// kLocalization never changes the map.
+enum class Mode { kMapping, kLocalization, kExternal, kMaintenance };
+// The modes that localize every image against the map (localization and maintenance).
+inline bool Localizes(Mode m) { return m == Mode::kLocalization || m == Mode::kMaintenance; }
 Mode ParseMode(const std::string& name);  // throws std::invalid_argument listing valid names
 std::string ModeName(Mode mode);
 
@@ -59,6 +64,10 @@ struct ServerOptions {
   // Sequence queries in localization mode (core/sequence.h): each image with the ones before it
   // through odometry; ~sequence_length (1: single images), ~sequence_max_span (metres).
   gtbow::SequenceOptions sequence;
+  // Maintenance mode's policy (core/maintenance.h): ~maintenance_refresh_below_inliers,
+  // ~maintenance_min_inliers, ~maintenance_max_theta_sigma, ~maintenance_place_fraction,
+  // ~maintenance_views_per_place.
+  gtbow::MaintenanceOptions maintenance;
   // Nothing lost: the map is saved to autosave_path (absolute; "" = never) every
   // autosave_period seconds (0 = never periodically) and when the node shuts down
   // (save_on_shutdown), whenever keyframes were added since the last save.

@@ -34,6 +34,7 @@ constexpr uint64_t kTrainVisit = 2;
 constexpr uint64_t kDriveVisit = 3;
 constexpr uint64_t kLaterDriveVisit = 50;  // + k for the k-th later drive
 constexpr uint64_t kFirstQueryVisit = 100;
+constexpr uint64_t kFirstSessionVisit = 300;  // + k for the k-th maintenance session
 
 // FNV-1a: a stable string hash (std::hash may differ between standard libraries).
 uint64_t Fnv1a(const std::string& s) {
@@ -56,6 +57,14 @@ std::string ImageName(const std::string& split, size_t index) {
   char buf[32];
   std::snprintf(buf, sizeof(buf), "_%06zu.png", index);
   return split + buf;
+}
+
+constexpr uint64_t kSessionSeed = 0x5e55000;  // + day
+
+std::string SessionSplitName(int day) {
+  char buf[32];
+  std::snprintf(buf, sizeof(buf), "session_day%03d", day);
+  return buf;
 }
 
 std::string QuerySplitName(int day) {
@@ -142,6 +151,9 @@ void SynthOptions::Check() const {
   need(query_trail >= 0 && query_trail <= 20, "query_trail must be in [0, 20]");
   need(std::isfinite(trail_spacing) && trail_spacing >= 1e-4 && trail_spacing <= 1.0,
        "trail_spacing must be in [0.0001, 1] metres");
+  need(session_days.size() <= 20, "at most 20 maintenance sessions");
+  for (int d : session_days) need(d > 0 && d <= 100000, "session_days must be in (0, 100000]");
+  need(session_images >= 0 && session_images <= 100000, "session_images must be in [0, 100000]");
   need(photo_meters_per_pixel >= 0 && std::isfinite(photo_meters_per_pixel),
        "photo_meters_per_pixel must be >= 0 (0: the camera's meters_per_pixel)");
   need(photos.empty() || train_images == 0 || !train_photos.empty(),
@@ -178,7 +190,8 @@ void KeepOnly(const SynthOptions& o, DatasetPlan* plan) {
   if (o.only.empty()) return;
   auto kind = [](const std::string& split) {
     if (split.rfind("drive_day", 0) == 0) return std::string("drive");
-    const bool query = split.rfind("query_", 0) == 0 || split.rfind("trail_", 0) == 0;
+    const bool query = split.rfind("query_", 0) == 0 || split.rfind("trail_", 0) == 0 ||
+                       split.rfind("session_", 0) == 0;
     return query ? std::string("queries") : split;
   };
   auto wanted = [&](const std::string& split) {
@@ -433,6 +446,26 @@ DatasetPlan PlanPhotoDataset(const SynthOptions& o, const std::vector<PhotoRegio
       }
     }
   }
+  // Maintenance sessions: every photo in turn, at random poses.
+  for (size_t k = 0; k < o.session_days.size(); ++k) {
+    const int day = o.session_days[k];
+    const std::string split = SessionSplitName(day);
+    std::vector<std::string>& names = plan.splits[split];
+    const int per = o.session_images > 0 ? o.session_images : o.queries_per_split;
+    for (size_t ri = 0; ri < nmap; ++ri) {
+      CellRng rng(HashCombine(HashCombine(o.seed, kSessionSeed + static_cast<uint64_t>(day)), ri));
+      for (int i = 0; i < per; ++i) {
+        PlannedImage im;
+        im.split = split;
+        im.name = ImageName(split, names.size());
+        im.pose = random_pose(rng, regions[ri]);
+        im.day = day;
+        im.visit = kFirstSessionVisit + k;
+        names.push_back(im.name);
+        plan.images.push_back(im);
+      }
+    }
+  }
   KeepOnly(o, &plan);
   return plan;
 }
@@ -657,6 +690,24 @@ DatasetPlan PlanDataset(const SynthOptions& o) {
           &plan);
     }
   }
+  // Maintenance sessions: random poses over the query area.
+  for (size_t k = 0; k < o.session_days.size(); ++k) {
+    const int day = o.session_days[k];
+    const std::string split = SessionSplitName(day);
+    CellRng rng(HashCombine(o.seed, kSessionSeed + static_cast<uint64_t>(day)));
+    std::vector<std::string>& names = plan.splits[split];
+    const int per = o.session_images > 0 ? o.session_images : o.queries_per_split;
+    for (int i = 0; i < per; ++i) {
+      PlannedImage im;
+      im.split = split;
+      im.name = ImageName(split, static_cast<size_t>(i));
+      im.pose = Rounded(RandomPose(rng, qx0, qx1, qy0, qy1));
+      im.day = day;
+      im.visit = kFirstSessionVisit + k;
+      names.push_back(im.name);
+      plan.images.push_back(im);
+    }
+  }
   // The drive: one recording session over the database area, with its odometry.
   if (o.drive_length > 0) {
     const std::vector<Pose2D> truth = DrivePath(o.area_width, o.area_height, o.camera.Geometry(),
@@ -825,6 +876,12 @@ SynthSummary GenerateDataset(const SynthOptions& o, const fs::path& out, bool fo
     }
     if (o.query_trail > 0) {
       prov << "query_trail: " << o.query_trail << "\ntrail_spacing: " << o.trail_spacing << "\n";
+    }
+    if (!o.session_days.empty()) {
+      prov << "session_days: [";
+      for (size_t k = 0; k < o.session_days.size(); ++k)
+        prov << (k ? ", " : "") << o.session_days[k];
+      prov << "]\nsession_images: " << o.session_images << "\n";
     }
     if (o.drive_length > 0 || o.query_trail > 0) {
       prov << "odometry_scale_bias: " << o.odometry.scale_bias

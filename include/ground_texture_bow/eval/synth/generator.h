@@ -77,6 +77,13 @@ struct SynthOptions {
   // query (the query at the origin; OdometryNoise over the trail, oldest first). 0 = none.
   int query_trail = 0;
   double trail_spacing = 0.03;
+  // Maintenance sessions (gtbow eval --maintain): for each day D here (> 0) a split
+  // session_dayDDD of session_images images per photo (0: queries_per_split), or over the
+  // query area of a synthetic floor, at random poses, on the floor aged to day D in its own
+  // lighting and debris: a robot's day of localizing over the floor, between the map and the
+  // query days. Its own seed and visits: the other splits do not change.
+  std::vector<int> session_days;
+  int session_images = 0;
   int threads = 0;  // worker threads, 0 = all cores
   // Render only these kinds of split ("train", "database", "queries", "drive"); empty = all. Poses
   // are those of the full dataset, so partial datasets of one seed fit together.
