@@ -8,7 +8,10 @@
 # Sequence queries (issue 28: each query with the images its trail holds, 3 and 5 in all) on
 # the ten photos, and changing_floors on three more renderings of them. Then the low-contrast
 # synthetic surfaces (smooth_concrete, epoxy) with the same presets, and the held-out
-# photographs (issue 28: high_accuracy beside changing_floors), singly and in sequences.
+# photographs (issue 28: high_accuracy beside changing_floors), singly and in sequences. And the
+# maintained map (issue 28): the robot's sessions on days 30 and 90 (40 images per photo) keep the
+# map up (gtbow eval --maintain, the node's maintenance mode) before day 180 is queried, on every
+# rendering, the synthetic surfaces and the held-out photos.
 # write_real_results.py checks the ten surfaces, every split, the targets and the plain-ORB
 # contrast on smooth concrete (scripts/targets.py, REAL); it exits non-zero, and so does this
 # script, when an input is absent or a claim is missed.
@@ -25,6 +28,11 @@ fi
 # Every query with a trail of 4 images before it (sequence queries; the single-image figures
 # are those of the same queries without it).
 export REAL_TRAIL=4
+# The robot's localization sessions on days 30 and 90, for the maintained map (the other splits
+# are the same with or without them).
+export REAL_SESSIONS=30,90
+maint=(--maintain session_day030,session_day090)
+mt=()
 bash "$here/scripts/real_floor_dataset.sh" "$gtbow" "$photos" "$data"
 "$gtbow" eval --dataset "$data" --words 20000 --preset "$cfg/high_accuracy.yaml" --preset "$cfg/fast.yaml" \
   --preset "$cfg/paper_literal.yaml" --preset "$cfg/paper_literal_fast.yaml" --preset "$cfg/authors.yaml" \
@@ -49,6 +57,13 @@ done
   --preset "$cfg/changing_floors.yaml" --sequence 5 --sequence-always --out "$out-sequence5-always" \
   --timing-queries 0 --no-plots -q > /dev/null
 seq+=(--sequence "$out-sequence5-always/results.json")
+# The maintained map: single images (high_accuracy and changing_floors) and 5-image sequences.
+"$gtbow" eval --dataset "$data" --words 20000 --preset "$cfg/high_accuracy.yaml" \
+  --preset "$cfg/changing_floors.yaml" "${maint[@]}" --out "$out-maintained" --timing-queries 0 \
+  --no-plots -q > /dev/null
+"$gtbow" eval --dataset "$data" --words 20000 --preset "$cfg/changing_floors.yaml" "${maint[@]}" \
+  --sequence 5 --out "$out-maintained-sequence5" --timing-queries 0 --no-plots -q > /dev/null
+mt+=(--maintained "$out-maintained/results.json" --maintained "$out-maintained-sequence5/results.json")
 # The same on three more renderings of the ten photos (other query poses, ageing and debris):
 # changing_floors alone, single images and 5-image sequences.
 for s in 2 3 4; do
@@ -57,13 +72,17 @@ for s in 2 3 4; do
     "$gtbow" eval --dataset "$data-seed$s" --words 20000 --preset "$cfg/changing_floors.yaml" \
       --sequence "$n" --out "$out-seed$s-sequence$n" --timing-queries 0 --no-plots -q > /dev/null
     seq+=(--sequence "$out-seed$s-sequence$n/results.json")
+    "$gtbow" eval --dataset "$data-seed$s" --words 20000 --preset "$cfg/changing_floors.yaml" \
+      "${maint[@]}" --sequence "$n" --out "$out-seed$s-maintained$n" --timing-queries 0 --no-plots \
+      -q > /dev/null
+    mt+=(--maintained "$out-seed$s-maintained$n/results.json")
   done
 done
 # The low-contrast synthetic surfaces (0.6 x 0.6 m each, 640 x 480 at 0.25 mm per pixel).
 lc=()
 for surface in smooth_concrete epoxy; do
   "$gtbow" synth --out "$data-$surface" --force --surface "$surface" --area 0.6 0.6 --train 100 \
-    --queries 30 --days 0,180 --query-trail 4 -q > /dev/null
+    --queries 30 --days 0,180 --query-trail 4 --session-days 30,90 -q > /dev/null
   "$gtbow" eval --dataset "$data-$surface" --words 5000 --preset "$cfg/high_accuracy.yaml" \
     --preset "$cfg/fast.yaml" --preset "$cfg/paper_literal.yaml" --preset "$cfg/authors.yaml" \
     --preset "$cfg/changing_floors.yaml" --preset "$cfg/ablation/changing/query_only.yaml" \
@@ -75,6 +94,12 @@ for surface in smooth_concrete epoxy; do
       --preset "$cfg/changing_floors.yaml" --sequence "$n" --out "$out-$surface-sequence$n" \
       --timing-queries 20 --no-plots -q > /dev/null
     seq+=(--sequence "$out-$surface-sequence$n/results.json")
+  done
+  for n in 1 5; do
+    "$gtbow" eval --dataset "$data-$surface" --words 5000 --preset "$cfg/changing_floors.yaml" \
+      "${maint[@]}" --sequence "$n" --out "$out-$surface-maintained$n" --timing-queries 0 \
+      --no-plots -q > /dev/null
+    mt+=(--maintained "$out-$surface-maintained$n/results.json")
   done
 done
 # The held-out photographs (issue 28): never used to design the presets.
@@ -90,5 +115,11 @@ bash "$here/scripts/real_floor_dataset.sh" "$gtbow" "$photos" "$data-heldout" he
   --out "$out-heldout-sequence5-always" --timing-queries 0 --no-plots -q > /dev/null
 seq+=(--sequence "$out-heldout/results.json" --sequence "$out-heldout-sequence5/results.json")
 seq+=(--sequence "$out-heldout-sequence5-always/results.json")
+for n in 1 5; do
+  "$gtbow" eval --dataset "$data-heldout" --words 20000 --preset "$cfg/changing_floors.yaml" \
+    "${maint[@]}" --sequence "$n" --out "$out-heldout-maintained$n" --timing-queries 0 --no-plots \
+    -q > /dev/null
+  mt+=(--maintained "$out-heldout-maintained$n/results.json")
+done
 /usr/bin/python3 "$here/scripts/write_real_results.py" --heldout "$out-heldout/results.json" \
-  "${seq[@]}" "$out/results.json" "$here/docs" "${lc[@]}"
+  "${seq[@]}" "${mt[@]}" "$out/results.json" "$here/docs" "${lc[@]}"

@@ -210,13 +210,17 @@ def combined_only(res):
     return sequence_length(res) > 1 and not res.get("protocol", {}).get("sequence_single_first", True)
 
 
-def sequences(chk, files, main_by, photos, days, lc_by):
-    """Issue 28's sequence queries: the ten photos (rendering 1 from the main run's single images,
-    renderings 2-4 from their own), the synthetic surfaces and the held-out photos."""
-    S = T.REAL_SEQUENCE
-    d0, dn = days[0], days[-1]
-    real, lc, held = {}, {}, {}  # (rendering, length) -> by preset; (surface, length); length
-    always = {}  # --sequence-always: (rendering or "held-out", length) -> by preset
+def rendering_of(res):
+    m = re.search(r"seed(\d+)$", res["dataset"]["name"])
+    return int(m.group(1)) if m else 1
+
+
+def collect(chk, files, photos):
+    """The runs of `files` by what they ran on: (real, lc, held, always): (rendering, length) ->
+    by preset for the ten photos; (surface, length) for the synthetic surfaces; length for the
+    held-out photos; the --sequence-always runs by (rendering or "held-out", length)."""
+    real, lc, held = {}, {}, {}
+    always = {}
     for f in files:
         res = load_json(chk, f)
         if res is None:
@@ -234,10 +238,18 @@ def sequences(chk, files, main_by, photos, days, lc_by):
             continue
         labels = set(per_surface(res["presets"][0]))
         if labels == set(photos):
-            m = re.search(r"seed(\d+)$", res["dataset"]["name"])
-            real[(int(m.group(1)) if m else 1, n)] = by
+            real[(rendering_of(res), n)] = by
         else:
             held[n] = by
+    return real, lc, held, always
+
+
+def sequences(chk, files, main_by, photos, days, lc_by):
+    """Issue 28's sequence queries: the ten photos (rendering 1 from the main run's single images,
+    renderings 2-4 from their own), the synthetic surfaces and the held-out photos."""
+    S = T.REAL_SEQUENCE
+    d0, dn = days[0], days[-1]
+    real, lc, held, always = collect(chk, files, photos)
     real[(1, 1)] = main_by
     renderings = sorted({r for r, _ in real})
     chk.need(len(renderings) == T.REAL_SEQUENCE_EXPECT["renderings"],
@@ -360,6 +372,149 @@ def sequences(chk, files, main_by, photos, days, lc_by):
     return lines
 
 
+def maintenance_of(p):
+    """(views added, retired, views placed wrong, largest error mm, largest error deg, live
+    keyframes after the last session, sessions) of a --maintain run's preset."""
+    m = p.get("maintenance") or {}
+    ss = m.get("sessions", [])
+    mm = [e for x in ss for e in x.get("added_error_mm", [])]
+    dg = [e for x in ss for e in x.get("added_error_deg", [])]
+    return (sum(x["added"] for x in ss), sum(x["retired"] for x in ss),
+            sum(x["added_wrong"] for x in ss), max(mm) if mm else 0.0, max(dg) if dg else 0.0,
+            ss[-1]["keyframes_after"] if ss else 0, ss)
+
+
+def maintained(chk, files, seq_files, main_by, photos, days, lc_by, heldout_res):
+    """Issue 28's maintained map: every rendering of the ten photos, single images and 5-image
+    sequences, against the frozen map's runs of the same configuration; the synthetic surfaces
+    and the held-out photos."""
+    M = T.REAL_MAINTAINED
+    d0, dn = days[0], days[-1]
+    real, lc, held, _ = collect(chk, files, photos)
+    f_real, f_lc, f_held, _ = collect(chk, seq_files, photos)
+    f_real[(1, 1)] = main_by
+    for surface, by in lc_by.items():
+        f_lc[(surface, 1)] = by
+    if heldout_res is not None:
+        f_held[1] = {preset_name(p): p for p in heldout_res["presets"]}
+    for (key, by) in list(real.items()) + list(lc.items()) + list(held.items()):
+        for name, p in by.items():
+            chk.need(p.get("maintenance", {}).get("sessions"), "maintenance sessions in %s %s" % (key, name))
+    renderings = sorted({r for r, _ in real})
+    chk.need(len(renderings) == T.REAL_MAINTAINED_EXPECT["renderings"],
+             "%d renderings of the ten photos with a maintained map" % T.REAL_MAINTAINED_EXPECT["renderings"])
+    for r in renderings:
+        for n in T.REAL_MAINTAINED_EXPECT["lengths"]:
+            chk.need((r, n) in real and "changing_floors" in real[(r, n)],
+                     "rendering %d, changing_floors, maintained, %d image(s)" % (r, n))
+            chk.need((r, n) in f_real and "changing_floors" in f_real[(r, n)],
+                     "rendering %d, changing_floors, frozen, %d image(s)" % (r, n))
+    chk.need((1, 1) in real and "high_accuracy" in real[(1, 1)], "rendering 1, high_accuracy, maintained")
+    for surface in T.REAL_EXPECT["low_contrast"]:
+        for n in T.REAL_MAINTAINED_EXPECT["lengths"]:
+            chk.need((surface, n) in lc and (surface, n) in f_lc, "%s, maintained and frozen, %d image(s)" % (surface, n))
+    chk.need(5 in held and 1 in held, "the held-out photos, maintained, 1 and 5 images")
+    if chk.missing:
+        return []
+    mean = lambda ps, d: sum(loc(ps[ph][d]) for ph in photos) / len(photos)
+    worst = lambda ps, d: min((loc(ps[ph][d]), ph) for ph in photos)
+    best = [(r, per_surface(real[(r, 5)]["changing_floors"])) for r in renderings]
+    rows = []
+    w = min(worst(ps, dn) + (r,) for r, ps in best)
+    rows.append(chk.target(M["oldest_worst"], w[0], "", "%.1f%% (%s, rendering %d)" % (100 * w[0], w[1], w[2])))
+    m = min((mean(ps, dn), r) for r, ps in best)
+    rows.append(chk.target(M["oldest_mean"], m[0], "", "%.1f%% (rendering %d)" % (100 * m[0], m[1])))
+    w = min(worst(ps, d0) + (r,) for r, ps in best)
+    rows.append(chk.target(M["day0_worst"], w[0], "", "%.1f%% (%s, rendering %d)" % (100 * w[0], w[1], w[2])))
+    added = 0
+    for key, by in list(real.items()) + list(lc.items()):
+        frozen = (f_real if key in real and isinstance(key[0], int) else f_lc).get(key, {})
+        for name, p in by.items():
+            if name in frozen:
+                added += max(0, wrong_poses(p) - wrong_poses(frozen[name]))
+    rows.append(chk.target(M["zero_wrong"], added, "", None))
+    placed = sum(maintenance_of(p)[2] for by in list(real.values()) + list(lc.values()) + list(held.values())
+                 for p in by.values())
+    rows.append(chk.target(M["placed_wrong"], placed, "", None))
+    r1 = real[(1, 1)]["changing_floors"]
+    sessions = maintenance_of(r1)[6]
+    lines = ["### A map that keeps up", "",
+             "The robot localizes on the map on days %s (`gtbow synth --session-days`: 40 images per "
+             "photo at random poses, the floor aged to that day, in its own light and debris) in the "
+             "node's maintenance mode (`mode: maintenance`; core/maintenance.h; `gtbow eval --maintain`): "
+             "a fix with fewer than %d inliers (but at least %d, and its rotation known within %.2f "
+             "degrees) says the floor there has changed, and the view becomes a keyframe at its fix. "
+             "The map's own keyframes are never retired; a place (within %.0f%% of the image's shorter "
+             "side) keeps at most %d such views, and the one matched longest ago is retired. Day 180 is "
+             "then queried against the maintained map; the frozen map's figures are the runs above, "
+             "beside it." % (
+                 " and ".join("%g" % x["day"] for x in sessions),
+                 r1["maintenance"]["refresh_below_inliers"], r1["maintenance"]["min_inliers"],
+                 r1["maintenance"]["max_theta_sigma"] * 180 / 3.141592653589793,
+                 100 * r1["maintenance"]["place_fraction"], r1["maintenance"]["max_views_per_place"]), ""]
+    lines += table(rows) + [""]
+    lines += ["The ten photos: mean (worst surface) on day %d and day %d, wrong verified poses among every "
+              "query's top K, and the map: keyframes live after the sessions (the map's own: %d), views "
+              "added and retired, the largest error of a view's placement." % (
+                  d0, dn, main_by["high_accuracy"]["database_images"]), "",
+              "| rendering | preset | images per query | map | day %d | day %d | worst on day %d | wrong | keyframes (added, retired) | views' largest error |" % (d0, dn, dn),
+              "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+    for r in renderings:
+        for name in ("high_accuracy", "changing_floors"):
+            for n in (1, 5):
+                for kind, runs in (("frozen", f_real), ("maintained", real)):
+                    by = runs.get((r, n), {})
+                    if name not in by:
+                        continue
+                    ps = per_surface(by[name])
+                    wn = worst(ps, dn)
+                    if kind == "maintained":
+                        a, ret, _, emm, edeg, live, _ = maintenance_of(by[name])
+                        kf, err = "%d (+%d, -%d)" % (live, a, ret), "%.2f mm, %.2f deg" % (emm, edeg)
+                    else:
+                        kf, err = "%d" % by[name]["database_images"], ""
+                    lines.append("| %d | `%s` | %d | %s | %.1f%% (%.0f%%) | %.1f%% (%.0f%%) | %s | %d | %s | %s |" % (
+                        r, name, n, kind, 100 * mean(ps, d0), 100 * worst(ps, d0)[0], 100 * mean(ps, dn),
+                        100 * wn[0], wn[1], wrong_poses(by[name]), kf, err))
+    lines += ["", "Per surface, `changing_floors` on day %d: the frozen map with single images, the maintained "
+              "map with single images, and with 5-image sequences:" % dn, "",
+              "| surface | " + " | ".join("rendering %d" % r for r in renderings) + " |",
+              "| --- | " + " | ".join("---" for _ in renderings) + " |"]
+    for ph in sorted(photos, key=lambda k: (not LABELS[k][1], k)):
+        cells = []
+        for r in renderings:
+            v = [per_surface(runs[(r, n)]["changing_floors"])[ph][dn] for runs, n in
+                 ((f_real, 1), (real, 1), (real, 5))]
+            cells.append(" / ".join("%.0f%%" % (100 * loc(x)) for x in v))
+        lines.append("| %s (%s) | %s |" % (LABELS[ph][0], ph, " | ".join(cells)))
+    day = lambda p, d: {x["day"]: x for x in p["splits"]}[d]
+    lines += ["", "The synthetic low-contrast surfaces (640 x 480, sessions of 30 images) and the held-out "
+              "photos, `changing_floors`, day %d / day %d (wrong verified poses):" % (d0, dn), "",
+              "| data | images per query | frozen map | maintained map | keyframes (added, retired) |",
+              "| --- | --- | --- | --- | --- |"]
+    for surface in T.REAL_EXPECT["low_contrast"]:
+        for n in (1, 5):
+            fp, mp = f_lc[(surface, n)]["changing_floors"], lc[(surface, n)]["changing_floors"]
+            a, ret, _, _, _, live, _ = maintenance_of(mp)
+            lines.append("| %s | %d | %.1f%% / %.1f%% (%d) | %.1f%% / %.1f%% (%d) | %d (+%d, -%d) |" % (
+                surface, n, 100 * loc(day(fp, d0)), 100 * loc(day(fp, dn)), wrong_poses(fp),
+                100 * loc(day(mp, d0)), 100 * loc(day(mp, dn)), wrong_poses(mp), live, a, ret))
+    for n in (1, 5):
+        if n not in f_held or "changing_floors" not in f_held[n]:
+            continue
+        fp, mp = f_held[n]["changing_floors"], held[n]["changing_floors"]
+        hm = lambda p, d: sum(loc(v[d]) for v in per_surface(p).values()) / len(per_surface(p))
+        a, ret, _, _, _, live, _ = maintenance_of(mp)
+        lines.append("| held-out photos (mean of %d) | %d | %.1f%% / %.1f%% (%d) | %.1f%% / %.1f%% (%d) | %d (+%d, -%d) |" % (
+            len(per_surface(mp)), n, 100 * hm(fp, d0), 100 * hm(fp, dn), wrong_poses(fp), 100 * hm(mp, d0),
+            100 * hm(mp, dn), wrong_poses(mp), live, a, ret))
+    lines += ["", "The sessions of rendering 1 (`changing_floors`, single images): " + "; ".join(
+        "day %g: %d of %d images localized (%d right), %d views added, %d retired, %d keyframes live after" % (
+            x["day"], x["fixes"], x["images"], x["correct"], x["added"], x["retired"], x["keyframes_after"])
+        for x in sessions) + ".", ""]
+    return lines
+
+
 def heldout(chk, res):
     """The held-out photographs: a table per surface, high_accuracy beside changing_floors."""
     by = {preset_name(p): p for p in res["presets"]}
@@ -396,7 +551,7 @@ def heldout(chk, res):
 
 
 
-def build(res, chk, lc_files, heldout_file=None, sequence_files=()):
+def build(res, chk, lc_files, heldout_file=None, sequence_files=(), maintained_files=()):
     """Checks everything; returns the section's body."""
     presets = res["presets"]
     by = {preset_name(p): p for p in presets}
@@ -479,8 +634,11 @@ def build(res, chk, lc_files, heldout_file=None, sequence_files=()):
     lines += [""] + changing(chk, by, photos, days, lc_by)
     if sequence_files:
         lines += sequences(chk, sequence_files, by, photos, days, lc_by)
+    held_res = load_json(chk, heldout_file) if heldout_file else None
+    if maintained_files:
+        lines += maintained(chk, maintained_files, sequence_files, by, photos, days, lc_by, held_res)
     if heldout_file:
-        lines += heldout(chk, load_json(chk, heldout_file))
+        lines += heldout(chk, held_res)
     return "## Real floors (issue 14)\n\n" + "\n".join(lines) + "\n"
 
 
@@ -490,6 +648,8 @@ def main():
     p.add_argument("--heldout", help="the held-out photographs' results.json")
     p.add_argument("--sequence", action="append", default=[],
                    help="a results.json of gtbow eval --sequence (repeatable)")
+    p.add_argument("--maintained", action="append", default=[],
+                   help="a results.json of gtbow eval --maintain (repeatable)")
     p.add_argument("inputs", nargs="+", help="RESULTS_JSON [DOCS_DIR] LOW_CONTRAST_RESULTS_JSON ...")
     a = p.parse_args()
     if a.small and (not a.check or len(a.inputs) != 1):
@@ -506,7 +666,7 @@ def main():
         if a.small:
             check_small(res, chk)
             return
-        body = build(res, chk, lc_files, a.heldout, a.sequence)
+        body = build(res, chk, lc_files, a.heldout, a.sequence, a.maintained)
         if docs is None or chk.missing or body is None:
             return
         print(body)

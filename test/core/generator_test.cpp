@@ -184,6 +184,40 @@ TEST(Generator, QueryTrailsLieBehindTheirQueriesInTheirSessionWithOdometry) {
   EXPECT_THROW(PlanDataset(o), std::invalid_argument);
 }
 
+// Maintenance sessions (gtbow synth --session-days): their own splits on their days and visits;
+// every other image of the plan is the same as without them.
+TEST(Generator, SessionsAddTheirOwnSplitsAndChangeNothingElse) {
+  SynthOptions o = Small();
+  const DatasetPlan before = PlanDataset(o);
+  o.session_days = {30, 90};
+  o.session_images = 7;
+  const DatasetPlan plan = PlanDataset(o);
+  ASSERT_EQ(plan.images.size(), before.images.size() + 14);
+  for (size_t i = 0; i < before.images.size(); ++i) {
+    const PlannedImage &a = before.images[i], &b = plan.images[i];
+    EXPECT_EQ(a.name, b.name);
+    EXPECT_EQ(a.visit, b.visit);
+    EXPECT_EQ(a.pose.x, b.pose.x);
+    EXPECT_EQ(a.pose.theta, b.pose.theta);
+  }
+  std::set<uint64_t> visits;
+  for (const auto& im : before.images) visits.insert(im.visit);
+  for (const char* split : {"session_day030", "session_day090"}) {
+    ASSERT_EQ(plan.splits.at(split).size(), 7u) << split;
+  }
+  for (size_t i = before.images.size(); i < plan.images.size(); ++i) {
+    const PlannedImage& im = plan.images[i];
+    EXPECT_EQ(im.day, im.split == "session_day030" ? 30.0 : 90.0) << im.name;
+    EXPECT_EQ(visits.count(im.visit), 0u) << "a session's own light and debris: " << im.name;
+  }
+  EXPECT_TRUE(plan.info.query_days.count("session_day030") == 0) << "not a query split";
+  o.only = {"database"};
+  EXPECT_EQ(PlanDataset(o).splits.count("session_day030"), 0u);
+  o.only = {};
+  o.session_days = {0};
+  EXPECT_THROW(PlanDataset(o), std::invalid_argument);
+}
+
 TEST(Generator, SquareAreaForImages) {
   SynthOptions o;
   for (int n : {100, 32000}) {

@@ -84,7 +84,8 @@ TEST_F(GtbowCli, BadInputGivesAClearMessageAndNonZeroExit) {
 TEST_F(GtbowCli, TrainEvaluateAndBenchmarkOnASyntheticFloor) {
   const std::string d = Out("floor");
   Result r = RunGtbow("synth --out " + d +
-                      " --area 0.4 0.3 --train 12 --queries 6 --days 0,90 --query-trail 2 -q");
+                      " --area 0.4 0.3 --train 12 --queries 6 --days 0,90 --query-trail 2" +
+                      " --session-days 45 --session-images 6 -q");
   ASSERT_EQ(r.code, 0) << r.output;
   r = RunGtbow("train-vocab --dataset " + d + " --words 800 --out " + Out("v.gtvoc") + " -q");
   ASSERT_EQ(r.code, 0) << r.output;
@@ -133,6 +134,27 @@ TEST_F(GtbowCli, TrainEvaluateAndBenchmarkOnASyntheticFloor) {
                " --sequence 4 --query-splits query_day000 --no-cache --no-plots -q");
   EXPECT_NE(r.code, 0);
   EXPECT_NE(r.output.find("2 images per query"), std::string::npos) << r.output;
+  // A maintained map: the session of day 45 keeps it up (every fix adds its view here), then
+  // day 90 queries it; a split that is not there is named.
+  r = RunGtbow("eval --dataset " + d + " --vocab " + Out("v.gtvoc") + " --out " + Out("maint") +
+               " --maintain session_day045 --maintain-refresh 100000 --query-splits query_day090" +
+               " --timing-queries 0 --no-cache --no-plots -q");
+  ASSERT_EQ(r.code, 0) << r.output;
+  const YAML::Node maint = YAML::LoadFile((dir_ / "maint" / "results.json").string());
+  const YAML::Node session = maint["presets"][0]["maintenance"]["sessions"][0];
+  ASSERT_TRUE(session.IsMap());
+  EXPECT_EQ(session["split"].as<std::string>(), "session_day045");
+  EXPECT_EQ(session["day"].as<double>(), 45.0);
+  EXPECT_EQ(session["images"].as<int>(), 6);
+  EXPECT_GE(session["added"].as<int>(), 3);
+  EXPECT_EQ(session["added_wrong"].as<int>(), 0);
+  EXPECT_EQ(session["keyframes_after"].as<int>(),
+            maint["presets"][0]["database_images"].as<int>() + session["added"].as<int>() -
+                session["retired"].as<int>());
+  r = RunGtbow("eval --dataset " + d + " --vocab " + Out("v.gtvoc") + " --out " + Out("maint2") +
+               " --maintain session_day046 --no-cache --no-plots -q");
+  EXPECT_NE(r.code, 0);
+  EXPECT_NE(r.output.find("session_day046"), std::string::npos) << r.output;
   std::ifstream poses(dir_ / "poses.csv");
   std::string header;
   std::getline(poses, header);

@@ -337,6 +337,70 @@ class Real(Base):
                         res("photo_floor_seed1", 5, both, 0.9, photos=PHOTOS[:2])))
         return [a for f in out for a in ("--sequence", f)]
 
+    def maintained_inputs(self, best_oldest=1.0, renderings=(1, 2, 3, 4), placed_wrong=0):
+        """The --maintained results of scripts/benchmark_real.sh: every rendering with 1 and 5
+        images (rendering 1 single with high_accuracy too), the synthetic surfaces, the held-out
+        photos; each preset with its maintenance sessions."""
+        def keep(r):
+            for p in r["presets"]:
+                p["maintenance"] = {
+                    "refresh_below_inliers": 60, "min_inliers": 12, "place_fraction": 0.25,
+                    "max_views_per_place": 3, "max_theta_sigma": 0.0026,
+                    "sessions": [{"split": "session_day%03d" % d, "day": d, "images": 400, "fixes": 398,
+                                  "correct": 398, "added": 40, "retired": 10,
+                                  "added_wrong": placed_wrong if d == 90 else 0,
+                                  "added_error_mm": [0.4, 1.1], "added_error_deg": [0.1, 0.5],
+                                  "keyframes_after": 178 + 30 * (1 + d // 90)} for d in (30, 90)]}
+            return r
+
+        def res(name, n, presets, cf_oldest, photos=PHOTOS):
+            r = real_results(photos=photos, presets=presets, cf_oldest=cf_oldest)
+            r["dataset"].update({"name": name, "surface": "photo"})
+            r["protocol"] = {"sequence": n}
+            return keep(r)
+
+        out = []
+        for r in renderings:
+            for n in (1, 5):
+                presets = ["high_accuracy", "changing_floors"] if (r, n) == (1, 1) else ["changing_floors"]
+                out.append(dump(os.path.join(self.dir, "maint%d_%d" % (r, n), "results.json"),
+                                res("photo_floor_seed%d" % r, n, presets, best_oldest if n == 5 else 0.9)))
+        for surface in ("smooth_concrete", "epoxy"):
+            for n in (1, 5):
+                lc = low_contrast(surface)
+                lc["dataset"].update({"name": surface + "_synth_seed1", "surface": surface})
+                lc["protocol"] = {"sequence": n}
+                out.append(dump(os.path.join(self.dir, "mlc_%s_%d" % (surface, n), "results.json"), keep(lc)))
+        for n in (1, 5):
+            out.append(dump(os.path.join(self.dir, "mheld%d" % n, "results.json"),
+                            res("photo_floor_seed1", n, ["changing_floors"], 0.9, photos=PHOTOS[:2])))
+        return [a for f in out for a in ("--maintained", f)]
+
+    def test_maintained_map_gets_its_table_and_targets(self):
+        ins = self.inputs()
+        self.expect(OK, "write_real_results.py", *self.sequence_inputs(), *self.maintained_inputs(),
+                    ins[0], self.docs, *ins[1:])
+        text = self.section("real")
+        self.assertIn("A map that keeps up", text)
+        self.assertIn("| 4 | `changing_floors` | 5 | maintained |", text)
+
+    def test_maintained_best_configuration_missed(self):
+        ins = self.inputs()
+        self.expect(MISSED, "write_real_results.py", "--check", *self.sequence_inputs(),
+                    *self.maintained_inputs(best_oldest=0.85), *ins,
+                    why="the best configuration (changing_floors, a maintained map")
+
+    def test_maintained_view_placed_wrong(self):
+        ins = self.inputs()
+        self.expect(MISSED, "write_real_results.py", "--check", *self.sequence_inputs(),
+                    *self.maintained_inputs(placed_wrong=1), *ins, why="views placed outside")
+
+    def test_maintained_rendering_missing(self):
+        ins = self.inputs()
+        self.expect(MISSING, "write_real_results.py", "--check", *self.sequence_inputs(),
+                    *self.maintained_inputs(renderings=(1, 2, 3)), *ins,
+                    why="renderings of the ten photos with a maintained map")
+
     def test_sequences_get_their_table_and_targets(self):
         ins = self.inputs()
         out = self.expect(OK, "write_real_results.py", *self.sequence_inputs(), ins[0], self.docs, *ins[1:])
