@@ -26,8 +26,8 @@ MapMaintainer::MapMaintainer(const MaintenanceOptions& options, const ImageGeome
   if (!(geometry.meters_per_pixel > 0) || geometry.width <= 0 || geometry.height <= 0) {
     throw std::invalid_argument("MapMaintainer: the image geometry has no size or scale");
   }
-  radius_ =
-      options_.place_fraction * std::min(geometry.width, geometry.height) * geometry.meters_per_pixel;
+  radius_ = options_.place_fraction * std::min(geometry.width, geometry.height) *
+            geometry.meters_per_pixel;
 }
 
 int64_t MapMaintainer::CellKey(double x, double y) const {
@@ -133,8 +133,7 @@ std::optional<uint32_t> ApplyMaintenance(const MaintenanceStep& step, const Loca
   for (uint32_t id : step.retire) localizer->Retire(id);
   if (!step.add) return std::nullopt;
   const Pose2D& pose = fix.estimate.floor_from_query;
-  const uint32_t id =
-      localizer->Add(view, stamp_ns, pose, Localizer::KeyframeSource::kMaintenance);
+  const uint32_t id = localizer->Add(view, stamp_ns, pose, Localizer::KeyframeSource::kMaintenance);
   maintainer->Track(id, pose, stamp_ns, true);
   return id;
 }

@@ -148,9 +148,9 @@ TEST_F(GtbowCli, TrainEvaluateAndBenchmarkOnASyntheticFloor) {
   EXPECT_EQ(session["images"].as<int>(), 6);
   EXPECT_GE(session["added"].as<int>(), 3);
   EXPECT_EQ(session["added_wrong"].as<int>(), 0);
-  EXPECT_EQ(session["keyframes_after"].as<int>(),
-            maint["presets"][0]["database_images"].as<int>() + session["added"].as<int>() -
-                session["retired"].as<int>());
+  EXPECT_EQ(session["keyframes_after"].as<int>(), maint["presets"][0]["database_images"].as<int>() +
+                                                      session["added"].as<int>() -
+                                                      session["retired"].as<int>());
   r = RunGtbow("eval --dataset " + d + " --vocab " + Out("v.gtvoc") + " --out " + Out("maint2") +
                " --maintain session_day046 --no-cache --no-plots -q");
   EXPECT_NE(r.code, 0);
