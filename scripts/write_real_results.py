@@ -229,8 +229,7 @@ def collect(chk, files, photos):
         n = sequence_length(res)
         if combined_only(res):
             labels = set(per_surface(res["presets"][0]))
-            m = re.search(r"seed(\d+)$", res["dataset"]["name"])
-            always[((int(m.group(1)) if m else 1) if labels == set(photos) else "held-out", n)] = by
+            always[(rendering_of(res) if labels == set(photos) else "held-out", n)] = by
             continue
         surface = res["dataset"]["surface"]
         if surface in T.REAL_EXPECT["low_contrast"]:
@@ -427,11 +426,11 @@ def maintained(chk, files, seq_files, main_by, photos, days, lc_by, heldout_res)
     w = min(worst(ps, d0) + (r,) for r, ps in best)
     rows.append(chk.target(M["day0_worst"], w[0], "", "%.1f%% (%s, rendering %d)" % (100 * w[0], w[1], w[2])))
     added = 0
-    for key, by in list(real.items()) + list(lc.items()):
-        frozen = (f_real if key in real and isinstance(key[0], int) else f_lc).get(key, {})
-        for name, p in by.items():
-            if name in frozen:
-                added += max(0, wrong_poses(p) - wrong_poses(frozen[name]))
+    for runs, frozen_runs in ((real, f_real), (lc, f_lc)):
+        for key, by in runs.items():
+            frozen = frozen_runs.get(key, {})
+            added += sum(max(0, wrong_poses(p) - wrong_poses(frozen[name]))
+                         for name, p in by.items() if name in frozen)
     rows.append(chk.target(M["zero_wrong"], added, "", None))
     placed = sum(maintenance_of(p)[2] for by in list(real.values()) + list(lc.values()) + list(held.values())
                  for p in by.values())
