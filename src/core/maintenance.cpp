@@ -6,6 +6,16 @@
 #include <tuple>
 
 namespace gtbow {
+namespace {
+
+// Packs a cell's two signed indices into one key (the high word holds i). The shift is done on
+// unsigned values: shifting a negative signed value is undefined behaviour.
+int64_t PackCell(int64_t i, int64_t j) {
+  return static_cast<int64_t>((static_cast<uint64_t>(i) << 32) ^
+                              (static_cast<uint64_t>(j) & 0xffffffffull));
+}
+
+}  // namespace
 
 void MaintenanceOptions::Check() const {
   auto need = [](bool ok, const char* what) {
@@ -33,7 +43,7 @@ MapMaintainer::MapMaintainer(const MaintenanceOptions& options, const ImageGeome
 int64_t MapMaintainer::CellKey(double x, double y) const {
   const auto i = static_cast<int64_t>(std::floor(x / radius_));
   const auto j = static_cast<int64_t>(std::floor(y / radius_));
-  return (i << 32) ^ (j & 0xffffffffll);
+  return PackCell(i, j);
 }
 
 void MapMaintainer::Track(uint32_t id, const Pose2D& pose, int64_t stamp_ns, bool maintained) {
@@ -69,7 +79,7 @@ std::vector<uint32_t> MapMaintainer::PlaceOf(const Pose2D& pose, bool views_only
   const auto cj = static_cast<int64_t>(std::floor(pose.y / radius_));
   for (int64_t i = ci - 1; i <= ci + 1; ++i) {
     for (int64_t j = cj - 1; j <= cj + 1; ++j) {
-      const auto cell = cells_.find((i << 32) ^ (j & 0xffffffffll));
+      const auto cell = cells_.find(PackCell(i, j));
       if (cell == cells_.end()) continue;
       for (uint32_t id : cell->second) {
         const Entry& e = keyframes_.at(id);
