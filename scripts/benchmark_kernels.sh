@@ -10,7 +10,9 @@
 #    must equal the portable kernel's (rankings and poses are compared);
 #  - the timings, in one more eval: each of QUERIES (default 200) random queries runs through
 #    every stage under each kernel in turn (--timing-kernels, the order rotating), so that a
-#    change in the machine's speed falls on every kernel alike.
+#    change in the machine's speed falls on every kernel alike; with them, the presets probing
+#    fewer word lists (config/ablation/search/*_nprobe*.yaml), for the search's effort against
+#    its accuracy.
 # write_kernels.py puts the medians and the targets into docs/RESULTS.md (section "kernels").
 # Usage: benchmark_kernels.sh GTBOW PHOTO_DIR DATA_DIR OUT_DIR
 set -euo pipefail
@@ -21,6 +23,8 @@ here="$(cd "$(dirname "$0")/.." && pwd)"
 cfg="$here/config"
 [ -f "$data/dataset.yaml" ] || bash "$here/scripts/real_floor_dataset.sh" "$gtbow" "$photos" "$data"
 mkdir -p "$out"
+# The CPU, for the report (the claim against the authors' quoted timing holds for its CPU only).
+sed -n 's/^model name[[:space:]]*: //p' /proc/cpuinfo | head -1 > "$out/cpu.txt"
 # A kernel this CPU lacks runs the next one down; write_kernels.py reads the kernel each run
 # reports and keeps one row per kernel.
 kernels=(portable popcnt avx2 avx512)
@@ -48,7 +52,12 @@ for k in "${kernels[@]}"; do
     --dump-poses "$out/poses_$k.csv" --out "$out/eval_$k" > /dev/null
 done
 echo "benchmark-kernels: the timings, every kernel on each of $queries queries"
-"$gtbow" eval --dataset "$data" --vocab "$out/vocab_portable.bin" "${presets[@]}" \
+# With them, the same presets probing fewer word lists (the search's effort against accuracy).
+search=()
+for f in high_accuracy_nprobe24 high_accuracy_nprobe16 high_accuracy_nprobe12 fast_nprobe16; do
+  search+=(--preset "$cfg/ablation/search/$f.yaml")
+done
+"$gtbow" eval --dataset "$data" --vocab "$out/vocab_portable.bin" "${presets[@]}" "${search[@]}" \
   --timing-queries "$queries" --timing-kernels "${kernels[@]}" --no-plots -q --no-cache -j 0 \
   --out "$out/eval_timing" > /dev/null
 for k in "${kernels[@]}"; do
