@@ -87,9 +87,9 @@ def main():
         cpu = run_cpu(a.out)
         if "avx2" in order:
             avx2 = med[("avx2", ha, "bow_transform")]
-            shown = "%.2f ms (%.1fx faster)" % (avx2, T.AUTHORS_TRANSFORM_MS / avx2)
             if T.AUTHORS_TRANSFORM_CPU in cpu:
-                rows.append(chk.target(T.KERNELS["avx2_vs_authors"], avx2, "", shown))
+                rows.append(chk.target(T.KERNELS["avx2_vs_authors"], avx2, "", "%.2f ms (%.1fx faster)"
+                                       % (avx2, T.AUTHORS_TRANSFORM_MS / avx2)))
             else:  # the authors' figure is another machine's: no verdict here
                 t = T.KERNELS["avx2_vs_authors"]
                 rows.append((t.what, "%s %g ms" % (t.op, t.bound), "%.2f ms" % avx2,
@@ -156,14 +156,16 @@ def search_effort(by, order, med):
              % (" / ".join(map(str, days)), " / ".join(map(str, days)), " / ".join(order)) +
              "".join(" %s / %s |" % (k, order[0]) for k in ratios),
              "| --- | --- | --- | --- | --- | --- |" + " --- |" * len(ratios)]
+    def mean(xs):
+        return sum(xs) / len(xs) if xs else 0.0
+
     for n in rows:
         pr = by[n]
         per_day = by_day(pr)
-        mean = lambda xs: sum(xs) / len(xs)
-        maps = " / ".join("%.3f" % mean([sp["map_at_1000"] for sp in per_day.get(d, [])] or [0])
+        maps = " / ".join("%.3f" % mean([sp["map_at_1000"] for sp in per_day.get(d, [])])
                           for d in days)
         loc = " / ".join("%.1f%%" % (100 * mean([sp["localization"]["success_rate"]
-                                                 for sp in per_day.get(d, [])] or [0])) for d in days)
+                                                 for sp in per_day.get(d, [])])) for d in days)
         wrong = sum(sp["backend"]["wrong_verified_poses"] for d in days for sp in per_day.get(d, []))
         t = [med[(k, n, "bow_transform")] for k in order]
         # The key itself, not train_nprobe.
