@@ -150,17 +150,13 @@ ImageFeatures FeatureExtractor::Extract(const cv::Mat& gray) const {
   if (!adaptive_) {
     detector_->detectAndCompute(image, cv::noArray(), kps, desc);
   } else {
-    // Detection at falling thresholds until the image yields num_features candidates. With a
-    // single threshold the candidates' descriptors come with the detection (one pyramid).
-    cv::Mat all_desc;
-    if (detectors_.size() == 1) {
-      detectors_[0]->detectAndCompute(image, cv::noArray(), kps, all_desc);
-    } else {
-      for (const auto& d : detectors_) {
-        kps.clear();
-        d->detect(image, kps);
-        if (kps.size() >= static_cast<size_t>(options_.num_features)) break;
-      }
+    // Detection at falling thresholds until the image yields num_features candidates; the
+    // descriptors of the chosen ones only, below (those of the candidates left out would cost
+    // a third of the detection).
+    for (const auto& d : detectors_) {
+      kps.clear();
+      d->detect(image, kps);
+      if (kps.size() >= static_cast<size_t>(options_.num_features)) break;
     }
     if (options_.grid_cols > 0 && options_.grid_refill) {
       // Cells with under half their share of candidates (a faint part of an otherwise rough
@@ -184,20 +180,13 @@ ImageFeatures FeatureExtractor::Extract(const cv::Mat& gray) const {
       }
       if (short_cells) {
         std::vector<cv::KeyPoint> more;
-        cv::Mat more_desc;
-        const auto& d = detectors_.back();
-        if (!all_desc.empty()) {
-          d->detectAndCompute(image, mask, more, more_desc);
-        } else {
-          d->detect(image, more, mask);
-        }
+        detectors_.back()->detect(image, more, mask);
         for (size_t i = 0; i < more.size(); ++i) {
           if (2 * count[CellOf(more[i].pt, image.size())] >= quota) continue;
           bool dup = false;
           for (const auto& k : kps) dup = dup || (k.pt == more[i].pt && k.octave == more[i].octave);
           if (dup) continue;
           kps.push_back(more[i]);
-          if (!all_desc.empty()) all_desc.push_back(more_desc.row(static_cast<int>(i)));
         }
       }
     }
@@ -231,15 +220,26 @@ ImageFeatures FeatureExtractor::Extract(const cv::Mat& gray) const {
     std::vector<cv::KeyPoint> kept;
     kept.reserve(chosen.size());
     for (size_t i : chosen) kept.push_back(kps[i]);
-    if (!all_desc.empty()) {
-      desc.create(static_cast<int>(chosen.size()), all_desc.cols, all_desc.type());
-      for (size_t j = 0; j < chosen.size(); ++j)
-        all_desc.row(static_cast<int>(chosen[j])).copyTo(desc.row(static_cast<int>(j)));
-      kps.swap(kept);
-    } else {
-      kps.swap(kept);
-      // Descriptors of the chosen keypoints (their orientation and pyramid level are kept).
-      if (!kps.empty()) detector_->compute(image, kps, desc);
+    kps.swap(kept);
+    // Descriptors of the chosen keypoints (their orientation and pyramid level are kept), in
+    // the order chosen: ORB's compute groups them by pyramid level, so each carries its rank.
+    if (!kps.empty()) {
+      for (size_t i = 0; i < kps.size(); ++i) kps[i].class_id = static_cast<int>(i);
+      cv::Mat by_level;
+      detector_->compute(image, kps, by_level);
+      std::vector<int> row(kps.size(), -1);
+      for (size_t i = 0; i < kps.size(); ++i) row[static_cast<size_t>(kps[i].class_id)] = static_cast<int>(i);
+      std::vector<cv::KeyPoint> ranked;
+      ranked.reserve(kps.size());
+      desc.create(static_cast<int>(kps.size()), by_level.cols, by_level.type());
+      for (size_t r = 0; r < row.size(); ++r) {
+        if (row[r] < 0) continue;  // dropped by compute (none are: they were detected there)
+        by_level.row(row[r]).copyTo(desc.row(static_cast<int>(ranked.size())));
+        ranked.push_back(kps[static_cast<size_t>(row[r])]);
+        ranked.back().class_id = -1;
+      }
+      desc = desc.rowRange(0, static_cast<int>(ranked.size()));
+      kps.swap(ranked);
     }
   }
   ImageFeatures out;
@@ -339,32 +339,49 @@ cv::Mat FeatureExtractor::RemoveTransients(const cv::Mat& gray) const {
     const int side = 2 * options_.transient_grow + 1;
     cv::dilate(marks, marks, cv::getStructuringElement(cv::MORPH_RECT, cv::Size(side, side)));
   }
-  // The fill: the mean of the unmarked pixels of the transient_fill x transient_fill window,
-  // from integral images read at the marked pixels only; where the whole window is marked, the
-  // median.
+  // The fill: the mean of the unmarked pixels of the transient_fill x transient_fill window;
+  // where the whole window is marked, the median. Few marks (the usual case: well under 1% of
+  // an aged image's pixels) sum their windows directly; many read integral images, which cost
+  // two passes over the whole image. Both give the same values.
+  const int reach = options_.transient_fill / 2;
+  const int side = 2 * reach + 1;
+  std::vector<cv::Point> marked;
+  cv::findNonZero(marks, marked);
+  cv::Mat out = gray.clone();
+  const auto fill = [&](const cv::Point& p, int32_t n, int32_t total) {
+    out.at<uint8_t>(p) = n > 0 ? static_cast<uint8_t>((total + n / 2) / n) : median.at<uint8_t>(p);
+  };
+  if (marked.size() * static_cast<size_t>(side) * side < 2 * gray.total()) {
+    for (const cv::Point& p : marked) {
+      const int r0 = std::max(0, p.y - reach), r1 = std::min(gray.rows, p.y + reach + 1);
+      const int c0 = std::max(0, p.x - reach), c1 = std::min(gray.cols, p.x + reach + 1);
+      int32_t n = 0, total = 0;
+      for (int r = r0; r < r1; ++r) {
+        const uint8_t* g = gray.ptr<uint8_t>(r);
+        const uint8_t* m = marks.ptr<uint8_t>(r);
+        for (int c = c0; c < c1; ++c) {
+          const int32_t unmarked = m[c] == 0 ? 1 : 0;
+          n += unmarked;
+          total += unmarked * g[c];
+        }
+      }
+      fill(p, n, total);
+    }
+    return out;
+  }
   cv::Mat keep, kept, sum, count;
   cv::threshold(marks, keep, 0, 1, cv::THRESH_BINARY_INV);  // 1 where unmarked
   cv::multiply(gray, keep, kept);
   cv::integral(kept, sum, CV_32S);
   cv::integral(keep, count, CV_32S);
-  const int reach = options_.transient_fill / 2;
-  cv::Mat out = gray.clone();
-  for (int r = 0; r < out.rows; ++r) {
-    const uint8_t* m = marks.ptr<uint8_t>(r);
-    const uint8_t* med = median.ptr<uint8_t>(r);
-    uint8_t* o = out.ptr<uint8_t>(r);
-    const int r0 = std::max(0, r - reach), r1 = std::min(out.rows, r + reach + 1);
+  for (const cv::Point& p : marked) {
+    const int r0 = std::max(0, p.y - reach), r1 = std::min(gray.rows, p.y + reach + 1);
+    const int c0 = std::max(0, p.x - reach), c1 = std::min(gray.cols, p.x + reach + 1);
     const int32_t* s0 = sum.ptr<int32_t>(r0);
     const int32_t* s1 = sum.ptr<int32_t>(r1);
     const int32_t* n0 = count.ptr<int32_t>(r0);
     const int32_t* n1 = count.ptr<int32_t>(r1);
-    for (int c = 0; c < out.cols; ++c) {
-      if (!m[c]) continue;
-      const int c0 = std::max(0, c - reach), c1 = std::min(out.cols, c + reach + 1);
-      const int32_t n = n1[c1] - n1[c0] - n0[c1] + n0[c0];
-      const int32_t total = s1[c1] - s1[c0] - s0[c1] + s0[c0];
-      o[c] = n > 0 ? static_cast<uint8_t>((total + n / 2) / n) : med[c];
-    }
+    fill(p, n1[c1] - n1[c0] - n0[c1] + n0[c0], s1[c1] - s1[c0] - s0[c1] + s0[c0]);
   }
   return out;
 }

@@ -4,6 +4,7 @@
 #include <cstdio>
 
 #include <gtest/gtest.h>
+#include <opencv2/features2d.hpp>
 #include <opencv2/imgproc.hpp>
 
 #include "ground_texture_bow/eval/synth/camera.h"
@@ -288,6 +289,95 @@ TEST(Features, TransientMarksAreFilledAndKeypointsLeaveThem) {
   q.query_num_features = 500;
   EXPECT_EQ(FeatureExtractor(QueryFeatureOptions(q)).Extract(marked).size(), 500u);
   EXPECT_EQ(FeatureExtractor(q).Extract(marked).size(), 250u);
+}
+
+// The fill of RemoveTransients sums each mark's window directly when marks are few and reads
+// integral images when they are many: both give the mean of the unmarked pixels of the
+// window (the median where all are marked), here against a brute-force fill of known marks.
+TEST(Features, TransientFillMatchesBruteForceWithFewAndManyMarks) {
+  for (const int spacing : {40, 4}) {  // 0.6% and 56% of the pixels marked
+    cv::Mat floor(120, 160, CV_8U);
+    for (int r = 0; r < floor.rows; ++r) {
+      for (int c = 0; c < floor.cols; ++c) floor.at<uint8_t>(r, c) = 100 + (r * 7 + c * 3) % 3;
+    }
+    cv::Mat dots = cv::Mat::zeros(floor.size(), CV_8U);
+    for (int r = 2; r < floor.rows; r += spacing) {
+      for (int c = 3; c < floor.cols; c += spacing) dots.at<uint8_t>(r, c) = 255;
+    }
+    cv::Mat marked = floor.clone();
+    marked.setTo(250, dots);
+    FeatureOptions o;
+    o.transient_median = 5;
+    o.transient_grow = 1;
+    o.transient_fill = 11;
+    o.transient_polarity = MarkPolarity::kBright;
+    const cv::Mat filled = FeatureExtractor(o).RemoveTransients(marked);
+    cv::Mat marks;  // the dots grown by one pixel
+    cv::dilate(dots, marks, cv::Mat::ones(3, 3, CV_8U));
+    cv::Mat median;
+    cv::medianBlur(marked, median, 5);
+    cv::Mat want = marked.clone();
+    for (int r = 0; r < floor.rows; ++r) {
+      for (int c = 0; c < floor.cols; ++c) {
+        if (!marks.at<uint8_t>(r, c)) continue;
+        int n = 0, total = 0;
+        for (int y = std::max(0, r - 5); y < std::min(floor.rows, r + 6); ++y) {
+          for (int x = std::max(0, c - 5); x < std::min(floor.cols, c + 6); ++x) {
+            if (marks.at<uint8_t>(y, x)) continue;
+            ++n;
+            total += marked.at<uint8_t>(y, x);
+          }
+        }
+        want.at<uint8_t>(r, c) = n > 0 ? static_cast<uint8_t>((total + n / 2) / n)
+                                       : median.at<uint8_t>(r, c);
+      }
+    }
+    EXPECT_EQ(cv::norm(filled, want, cv::NORM_INF), 0.0) << "dots every " << spacing << " px";
+    EXPECT_GT(cv::countNonZero(marks), 0);
+  }
+}
+
+// The grid extractor's keypoints come strongest-chosen first (not grouped by pyramid level),
+// each with the descriptor ORB computes for it.
+TEST(Features, GridKeypointsKeepTheirRankAndDescriptors) {
+  const cv::Mat image = Faint(Asphalt(), 0.5);
+  FeatureOptions o;
+  o.contrast = Contrast::kClahe;
+  o.grid_cols = 4;
+  o.grid_rows = 3;
+  const FeatureExtractor extractor(o);
+  const ImageFeatures f = extractor.Extract(image);
+  ASSERT_EQ(f.size(), 250u);
+  // The first 21 (a cell's share of 250 over 12 cells) include the image's strongest keypoint.
+  float strongest = 0;
+  for (const auto& k : f.keypoints) strongest = std::max(strongest, k.response);
+  bool found = false;
+  for (size_t i = 0; i < 21; ++i) found = found || f.keypoints[i].response == strongest;
+  EXPECT_TRUE(found);
+  bool levels_mixed = false;  // not sorted by pyramid level
+  for (size_t i = 1; i < f.size(); ++i) {
+    levels_mixed = levels_mixed || f.keypoints[i].octave < f.keypoints[i - 1].octave;
+  }
+  EXPECT_TRUE(levels_mixed);
+  // Each descriptor is the one ORB gives that keypoint when it describes all 500 candidates.
+  std::vector<cv::KeyPoint> candidates;
+  cv::Mat desc;
+  cv::ORB::create(500, o.orb_scale_factor, o.orb_num_levels, o.orb_edge_threshold, 0, 2,
+                  cv::ORB::HARRIS_SCORE, o.orb_patch_size, o.orb_fast_threshold)
+      ->detectAndCompute(extractor.Preprocess(image), cv::noArray(), candidates, desc);
+  for (size_t i = 0; i < f.size(); ++i) {
+    int row = -1;
+    for (size_t j = 0; j < candidates.size(); ++j) {
+      if (candidates[j].pt == cv::Point2f(f.keypoints[i].x, f.keypoints[i].y) &&
+          candidates[j].octave == f.keypoints[i].octave) {
+        row = static_cast<int>(j);
+      }
+    }
+    ASSERT_GE(row, 0) << i;
+    EXPECT_EQ(cv::norm(desc.row(row), f.descriptors.row(static_cast<int>(i)), cv::NORM_HAMMING),
+              0.0)
+        << i;
+  }
 }
 
 }  // namespace
