@@ -228,7 +228,8 @@ ImageFeatures FeatureExtractor::Extract(const cv::Mat& gray) const {
       cv::Mat by_level;
       detector_->compute(image, kps, by_level);
       std::vector<int> row(kps.size(), -1);
-      for (size_t i = 0; i < kps.size(); ++i) row[static_cast<size_t>(kps[i].class_id)] = static_cast<int>(i);
+      for (size_t i = 0; i < kps.size(); ++i)
+        row[static_cast<size_t>(kps[i].class_id)] = static_cast<int>(i);
       std::vector<cv::KeyPoint> ranked;
       ranked.reserve(kps.size());
       desc.create(static_cast<int>(kps.size()), by_level.cols, by_level.type());

@@ -328,8 +328,8 @@ TEST(Features, TransientFillMatchesBruteForceWithFewAndManyMarks) {
             total += marked.at<uint8_t>(y, x);
           }
         }
-        want.at<uint8_t>(r, c) = n > 0 ? static_cast<uint8_t>((total + n / 2) / n)
-                                       : median.at<uint8_t>(r, c);
+        want.at<uint8_t>(r, c) =
+            n > 0 ? static_cast<uint8_t>((total + n / 2) / n) : median.at<uint8_t>(r, c);
       }
     }
     EXPECT_EQ(cv::norm(filled, want, cv::NORM_INF), 0.0) << "dots every " << spacing << " px";
