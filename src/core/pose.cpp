@@ -183,6 +183,16 @@ void LocalizationOptions::Check() const {
       !std::isfinite(consensus_distance) || !std::isfinite(consensus_angle)) {
     throw std::invalid_argument("localization: consensus_distance and consensus_angle must be > 0");
   }
+  if (!(guided_radius >= 0.0) || !std::isfinite(guided_radius) || !(guided_max_distance >= 0.0) ||
+      !std::isfinite(guided_max_distance)) {
+    throw std::invalid_argument("localization: guided_radius and guided_max_distance must be >= 0");
+  }
+  if (guided_seed_inliers < 2) {
+    throw std::invalid_argument("localization: guided_seed_inliers must be >= 2");
+  }
+  if (guided_radius > 0.0 && matches != MatchSource::kDescriptors) {
+    throw std::invalid_argument("localization: guided_radius needs matches: descriptors");
+  }
   pose.Check();
 }
 
@@ -513,6 +523,89 @@ std::vector<PointMatch> DescriptorMatches(const std::vector<Keypoint>& qk, const
   return out;
 }
 
+std::vector<PointMatch> GuidedMatches(const std::vector<Keypoint>& qk, const cv::Mat& qd,
+                                      const std::vector<Keypoint>& dk, const cv::Mat& dd,
+                                      const Rigid2D& h, const ImageGeometry& geometry,
+                                      double radius, double max_distance) {
+  if (qd.rows != static_cast<int>(qk.size()) || dd.rows != static_cast<int>(dk.size())) {
+    throw std::invalid_argument("GuidedMatches: keypoints and descriptor rows differ in number");
+  }
+  std::vector<PointMatch> out;
+  if (qk.empty() || dk.empty()) return out;
+  if (qd.type() != dd.type() || qd.cols != dd.cols || (qd.type() != CV_8U && qd.type() != CV_32F)) {
+    throw std::invalid_argument("GuidedMatches: the two images' descriptors differ in kind");
+  }
+  const Vec2 c{(geometry.width - 1) / 2.0, (geometry.height - 1) / 2.0};
+  const double r2 = radius * radius;
+  const auto distance = [&](int i, int j) {
+    if (qd.type() == CV_8U) {
+      return static_cast<double>(HammingDistance(qd.ptr<uint8_t>(i), dd.ptr<uint8_t>(j), qd.cols));
+    }
+    const float* a = qd.ptr<float>(i);
+    const float* b = dd.ptr<float>(j);
+    double sum = 0.0;
+    for (int k = 0; k < qd.cols; ++k) sum += (a[k] - b[k]) * (a[k] - b[k]);
+    return std::sqrt(sum);
+  };
+  // Each database keypoint keeps the nearest query keypoint that chose it.
+  std::vector<int> from(dk.size(), -1);
+  std::vector<double> best(dk.size(), std::numeric_limits<double>::infinity());
+  for (size_t i = 0; i < qk.size(); ++i) {
+    const Vec2 at = Rotate(h.theta, {qk[i].x - c.x, qk[i].y - c.y});
+    const double px = at.x + h.t.x + c.x, py = at.y + h.t.y + c.y;
+    int arg = -1;
+    double nearest = std::numeric_limits<double>::infinity();
+    for (size_t j = 0; j < dk.size(); ++j) {
+      const double dx = dk[j].x - px, dy = dk[j].y - py;
+      if (dx * dx + dy * dy > r2) continue;
+      const double d = distance(static_cast<int>(i), static_cast<int>(j));
+      if (d < nearest) {
+        nearest = d;
+        arg = static_cast<int>(j);
+      }
+    }
+    if (arg < 0 || nearest > max_distance || nearest >= best[arg]) continue;
+    best[arg] = nearest;
+    from[arg] = static_cast<int>(i);
+  }
+  for (size_t j = 0; j < dk.size(); ++j) {
+    if (from[j] < 0) continue;
+    const Keypoint& a = qk[from[j]];
+    const Keypoint& b = dk[j];
+    out.push_back({{a.x, a.y}, {b.x, b.y}, 1.0, WrapAngle(b.angle - a.angle)});
+  }
+  return out;
+}
+
+namespace {
+
+// Whether a failed estimate is a seed for guided matching: a hypothesis short of inliers (not
+// one refused by a check: clustered inliers are a floor's local repeat).
+bool GuidedSeed(const PoseEstimate& e, const LocalizationOptions& o) {
+  return o.guided_radius > 0.0 && !e.success && e.inliers >= o.guided_seed_inliers &&
+         e.inliers < o.pose.min_inliers;
+}
+
+// Verifies candidate `r` again from guided matches through the seed's hypothesis.
+PoseEstimate VerifyGuided(const QueryResult& r, const BowVector& query, const MapAccess& map,
+                          const ImageGeometry& geometry, const LocalizationOptions& o,
+                          const PoseEstimate& seed, std::vector<Vec2>* inlier_pixels) {
+  const std::vector<PointMatch> matches = GuidedMatches(
+      query.source, query.source_descriptors, map.keypoints(r.image), map.descriptors(r.image),
+      seed.database_from_query, geometry, o.guided_radius, o.guided_max_distance);
+  PoseEstimate est = EstimatePose(matches, map.pose(r.image), geometry, o.pose);
+  if (!est.success) {
+    est.reason = "guided: " + est.reason + " (seed: " + seed.reason + ")";
+    return est;
+  }
+  if (inlier_pixels != nullptr) {
+    for (int i : est.inlier_indices) inlier_pixels->push_back(matches[i].query);
+  }
+  return est;
+}
+
+}  // namespace
+
 PoseEstimate VerifyCandidate(const QueryResult& r, const BowVector& query, const MapAccess& map,
                              const ImageGeometry& geometry, const LocalizationOptions& options,
                              std::vector<Vec2>* inlier_pixels) {
@@ -600,6 +693,21 @@ std::vector<PoseEstimate> VerifyEach(const std::vector<QueryResult>& results,
     if (out[k].success) poses[k] = out[k].floor_from_query;
   }
   ResolveConflicts(poses, &out, o);
+  // Guided matching, when no candidate verified and none was refused by the consensus.
+  bool any = false, refused = false;
+  for (size_t k = 0; k < n; ++k) {
+    any = any || out[k].success;
+    refused = refused || (poses[k] && !out[k].success);
+  }
+  if (o.guided_radius > 0.0 && !any && !refused) {
+    for (size_t k = 0; k < n; ++k) {
+      if (!GuidedSeed(out[k], o)) continue;
+      out[k] = VerifyGuided(results[k], query, map, geometry, o, out[k],
+                            inlier_pixels != nullptr ? &(*inlier_pixels)[k] : nullptr);
+      if (out[k].success) poses[k] = out[k].floor_from_query;
+    }
+    ResolveConflicts(poses, &out, o);
+  }
   if (inlier_pixels != nullptr) {
     for (size_t k = 0; k < n; ++k) {
       if (!out[k].success) (*inlier_pixels)[k].clear();
@@ -651,6 +759,7 @@ Localization VerifyCandidates(const std::vector<QueryResult>& results, const Bow
     }
     for (size_t k = 0; k < each.size(); ++k) note(k, each[k].reason);
   } else {
+    std::vector<PoseEstimate> seeds(n);
     for (size_t rank = 0; rank < n; ++rank) {
       const QueryResult& r = results[rank];
       std::string why = map.unusable ? map.unusable(r.image) : std::string();
@@ -658,8 +767,16 @@ Localization VerifyCandidates(const std::vector<QueryResult>& results, const Bow
         PoseEstimate est = VerifyCandidate(r, query, map, geometry, o, &loc.inlier_pixels);
         if (est.success) return answer(rank, std::move(est));
         why = est.reason;
+        seeds[rank] = std::move(est);
       }
       note(rank, why);
+    }
+    // Guided matching, in rank order, when none verified.
+    for (size_t rank = 0; rank < n; ++rank) {
+      if (!GuidedSeed(seeds[rank], o)) continue;
+      PoseEstimate est =
+          VerifyGuided(results[rank], query, map, geometry, o, seeds[rank], &loc.inlier_pixels);
+      if (est.success) return answer(rank, std::move(est));
     }
   }
   loc.reason = "none of " + std::to_string(n) + " candidates verified (" + reasons +

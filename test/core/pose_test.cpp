@@ -290,6 +290,126 @@ TEST(PoseChecks, DescriptorMatchesAreMutualNearestNeighboursPassingTheRatioTest)
   EXPECT_THROW(DescriptorMatches(short_keypoints, q, dk, d, 0.8), std::invalid_argument);
 }
 
+// Guided matching (issue 28): a faint floor's lasting keypoints whose descriptors have twins
+// elsewhere in the image fail the ratio test; matched near where a 5-inlier hypothesis puts
+// them, they give the pose. Off by default.
+TEST(PoseChecks, GuidedMatchingRecoversMatchesTheRatioTestDrops) {
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<double> u(60.0, 580.0), v(60.0, 420.0);
+  const Rigid2D h{0.2, {30.0, -20.0}};  // database - c = R(h.theta) (query - c) + h.t
+  const Vec2 c{319.5, 239.5};
+  auto to_db = [&](double x, double y) {
+    const double dx = x - c.x, dy = y - c.y;
+    return Vec2{std::cos(h.theta) * dx - std::sin(h.theta) * dy + h.t.x + c.x,
+                std::sin(h.theta) * dx + std::cos(h.theta) * dy + h.t.y + c.y};
+  };
+  const int clean = 5, twinned = 30;
+  std::vector<Keypoint> qk, dk;
+  cv::Mat qd(0, 32, CV_8U), dd(0, 32, CV_8U);
+  auto flip = [](cv::Mat row, int bits, int salt) {
+    for (int b = 0; b < bits; ++b)
+      row.at<uint8_t>(0, (b * 7 + salt) % 32) ^= 1u << ((b + salt) % 8);
+  };
+  while (static_cast<int>(qk.size()) < clean + twinned) {
+    const double x = u(rng), y = v(rng);
+    const Vec2 d = to_db(x, y);
+    if (d.x < 20 || d.x > 620 || d.y < 20 || d.y > 460) continue;
+    cv::Mat row(1, 32, CV_8U);
+    cv::randu(row, 0, 256);
+    Keypoint a;
+    a.x = static_cast<float>(x);
+    a.y = static_cast<float>(y);
+    qk.push_back(a);
+    qd.push_back(row);
+    Keypoint b;
+    b.x = static_cast<float>(d.x);
+    b.y = static_cast<float>(d.y);
+    b.angle = static_cast<float>(h.theta);
+    cv::Mat aged = row.clone();
+    flip(aged, 20, static_cast<int>(qk.size()));  // 20 bits changed since
+    dk.push_back(b);
+    dd.push_back(aged);
+    if (static_cast<int>(qk.size()) > clean) {  // a twin as close, far from the true place
+      Keypoint t = b;
+      t.x = static_cast<float>(std::fmod(d.x + 300.0, 600.0) + 20.0);
+      cv::Mat twin = row.clone();
+      flip(twin, 20, static_cast<int>(qk.size()) + 3);
+      dk.push_back(t);
+      dd.push_back(twin);
+    }
+  }
+  // And 3 unique matches at places that do not fit (the ratio test keeps them: outliers).
+  for (int i = 0; i < 3; ++i) {
+    cv::Mat row(1, 32, CV_8U);
+    cv::randu(row, 0, 256);
+    Keypoint a, b;
+    a.x = static_cast<float>(100 + 200 * i);
+    a.y = 100.0f;
+    b.x = static_cast<float>(500 - 150 * i);
+    b.y = 400.0f;
+    qk.push_back(a);
+    qd.push_back(row);
+    dk.push_back(b);
+    cv::Mat aged = row.clone();
+    flip(aged, 20, 50 + i);
+    dd.push_back(aged);
+  }
+  const ImageGeometry geo{640, 480, 0.0005};
+  // The ratio test keeps the 5 clean ones and the 3 outliers.
+  EXPECT_EQ(DescriptorMatches(qk, qd, dk, dd, 0.8).size(), static_cast<size_t>(clean + 3));
+  // Guided through the true transform: every lasting keypoint, none of the twins.
+  std::vector<PointMatch> g = GuidedMatches(qk, qd, dk, dd, h, geo, 8.0, 80.0);
+  ASSERT_EQ(g.size(), static_cast<size_t>(clean + twinned));
+  for (const PointMatch& m : g) {
+    const Vec2 want = to_db(m.query.x, m.query.y);
+    EXPECT_NEAR(m.database.x, want.x, 1e-3);
+    EXPECT_NEAR(m.database.y, want.y, 1e-3);
+  }
+  // Nothing beyond the distance or the radius (a hypothesis 20 px off).
+  EXPECT_TRUE(GuidedMatches(qk, qd, dk, dd, h, geo, 8.0, 10.0).empty());
+  EXPECT_TRUE(
+      GuidedMatches(qk, qd, dk, dd, {h.theta, {h.t.x + 20.0, h.t.y}}, geo, 8.0, 80.0).empty());
+
+  // Through VerifyCandidates: 5 inliers, short of 8; guided, the pose.
+  BowVector query;
+  query.source = qk;
+  query.source_descriptors = qd;
+  MapAccess map;
+  map.keypoints = [&](uint32_t) { return dk; };
+  map.descriptors = [&](uint32_t) { return dd; };
+  map.pose = [](uint32_t) { return Pose2D{1.0, 2.0, 0.0}; };
+  QueryResult r;
+  r.image = 3;
+  LocalizationOptions o;
+  o.candidates = 1;
+  o.matches = MatchSource::kDescriptors;
+  o.pose.min_inliers = 8;
+  for (const double conflict : {0.0, 0.5}) {  // first-verified and consensus procedures
+    o.max_conflict_ratio = conflict;
+    o.guided_radius = 0.0;
+    const Localization plain = VerifyCandidates({r}, query, map, geo, o);
+    EXPECT_FALSE(plain.success);
+    EXPECT_NE(plain.reason.find("5 inliers"), std::string::npos) << plain.reason;
+    o.guided_radius = 8.0;
+    const Localization guided = VerifyCandidates({r}, query, map, geo, o);
+    ASSERT_TRUE(guided.success) << guided.reason;
+    EXPECT_EQ(guided.estimate.inliers, clean + twinned);
+    EXPECT_NEAR(guided.estimate.database_from_query.theta, h.theta, 1e-3);
+    EXPECT_NEAR(guided.estimate.database_from_query.t.x, h.t.x, 0.05);
+    EXPECT_NEAR(guided.estimate.database_from_query.t.y, h.t.y, 0.05);
+    // A seed needs guided_seed_inliers: with 6 the 5-inlier hypothesis seeds nothing.
+    o.guided_seed_inliers = 6;
+    EXPECT_FALSE(VerifyCandidates({r}, query, map, geo, o).success);
+    o.guided_seed_inliers = 4;
+  }
+  o.guided_radius = -1.0;
+  EXPECT_THROW(o.Check(), std::invalid_argument);
+  o.guided_radius = 8.0;
+  o.matches = MatchSource::kWords;
+  EXPECT_THROW(o.Check(), std::invalid_argument);
+  EXPECT_EQ(LocalizationOptions{}.guided_radius, 0.0);  // off unless a preset sets it
+}
+
 TEST(Localize, AQueryWithoutFeaturesGetsNoEstimateAndAReason) {
   BowOptions o;
   o.size_binning = SizeBinning::kNone;

@@ -126,6 +126,18 @@ struct LocalizationOptions {
   double max_conflict_ratio = 0.0;
   double consensus_distance = 0.01;  // metres
   double consensus_angle = 0.0524;   // radians (3 degrees)
+  // Guided matching (kDescriptors; 0 = off), for a query none of whose candidates verified and
+  // none was refused by the consensus: a candidate whose RANSAC hypothesis had at least
+  // guided_seed_inliers inliers but fewer than pose.min_inliers is matched again through that
+  // hypothesis. Each query keypoint takes the nearest descriptor among the candidate's keypoints
+  // within guided_radius pixels of where the hypothesis puts it, when within guided_max_distance
+  // (Hamming bits, or L2 for float descriptors), each candidate keypoint keeping its nearest
+  // query keypoint; no ratio test. The pose from those matches then passes every check of
+  // `pose` and the consensus as any other. On a faint, aged floor the ratio test leaves too few
+  // of the matches that lasted; near where they must be, they are told apart.
+  double guided_radius = 0.0;         // pixels
+  double guided_max_distance = 80.0;  // descriptor distance
+  int guided_seed_inliers = 4;
 
   void Check() const;
 };
@@ -168,6 +180,17 @@ PoseEstimate VerifyCandidate(const QueryResult& candidate, const BowVector& quer
                              const MapAccess& map, const ImageGeometry& geometry,
                              const LocalizationOptions& options,
                              std::vector<Vec2>* inlier_pixels = nullptr);
+
+// The guided matches of `query` with a database image through `database_from_query` (the
+// rigid transform of centred pixels, PoseEstimate::database_from_query): see
+// LocalizationOptions::guided_radius.
+std::vector<PointMatch> GuidedMatches(const std::vector<Keypoint>& query_keypoints,
+                                      const cv::Mat& query_descriptors,
+                                      const std::vector<Keypoint>& database_keypoints,
+                                      const cv::Mat& database_descriptors,
+                                      const Rigid2D& database_from_query,
+                                      const ImageGeometry& geometry, double radius,
+                                      double max_distance);
 
 // Applies LocalizationOptions::max_conflict_ratio's consensus to estimates[k] (verified or
 // not), whose poses in one common frame are poses[k] (nullopt: not comparable, left alone).
