@@ -193,6 +193,11 @@ void LocalizationOptions::Check() const {
   if (guided_radius > 0.0 && matches != MatchSource::kDescriptors) {
     throw std::invalid_argument("localization: guided_radius needs matches: descriptors");
   }
+  if (guided_radius > 0.0 && guided_seed_inliers >= pose.min_inliers) {
+    throw std::invalid_argument(
+        "localization: guided_seed_inliers must be below min_inliers (a seed is a hypothesis "
+        "short of min_inliers)");
+  }
   pose.Check();
 }
 

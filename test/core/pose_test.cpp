@@ -407,6 +407,9 @@ TEST(PoseChecks, GuidedMatchingRecoversMatchesTheRatioTestDrops) {
   o.guided_radius = 8.0;
   o.matches = MatchSource::kWords;
   EXPECT_THROW(o.Check(), std::invalid_argument);
+  o.matches = MatchSource::kDescriptors;
+  o.guided_seed_inliers = 8;  // a seed must be short of min_inliers (8)
+  EXPECT_THROW(o.Check(), std::invalid_argument);
   EXPECT_EQ(LocalizationOptions{}.guided_radius, 0.0);  // off unless a preset sets it
 }
 

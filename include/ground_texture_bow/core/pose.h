@@ -127,12 +127,13 @@ struct LocalizationOptions {
   double consensus_distance = 0.01;  // metres
   double consensus_angle = 0.0524;   // radians (3 degrees)
   // Guided matching (kDescriptors; 0 = off), for a query none of whose candidates verified and
-  // none was refused by the consensus: a candidate whose RANSAC hypothesis had at least
-  // guided_seed_inliers inliers but fewer than pose.min_inliers is matched again through that
-  // hypothesis. Each query keypoint takes the nearest descriptor among the candidate's keypoints
-  // within guided_radius pixels of where the hypothesis puts it, when within guided_max_distance
-  // (Hamming bits, or L2 for float descriptors), each candidate keypoint keeping its nearest
-  // query keypoint; no ratio test. The pose from those matches then passes every check of
+  // none was refused by the consensus: a candidate with at least pose.min_inliers ratio-test
+  // matches (fewer never reach RANSAC) whose RANSAC hypothesis had at least guided_seed_inliers
+  // inliers but fewer than pose.min_inliers is matched again through that hypothesis. Each query
+  // keypoint takes the nearest descriptor among the candidate's keypoints within guided_radius
+  // pixels of where the hypothesis puts it, when within guided_max_distance (Hamming bits, or L2
+  // for float descriptors), each candidate keypoint keeping the query keypoint nearest to it in
+  // descriptor distance; no ratio test. The pose from those matches then passes every check of
   // `pose` and the consensus as any other. On a faint, aged floor the ratio test leaves too few
   // of the matches that lasted; near where they must be, they are told apart.
   double guided_radius = 0.0;         // pixels
