@@ -477,6 +477,19 @@ void NearestInTable(const T* table, int nq, int nd, std::vector<double>* q_best,
 
 }  // namespace
 
+namespace {
+// The distance of row i of `a` to row j of `b` (same kind): Hamming bits for CV_8U, L2 for
+// CV_32F.
+double RowDistance(const cv::Mat& a, int i, const cv::Mat& b, int j) {
+  if (a.type() == CV_8U) return HammingDistance(a.ptr<uint8_t>(i), b.ptr<uint8_t>(j), a.cols);
+  const float* x = a.ptr<float>(i);
+  const float* y = b.ptr<float>(j);
+  double sum = 0.0;
+  for (int k = 0; k < a.cols; ++k) sum += (x[k] - y[k]) * (x[k] - y[k]);
+  return std::sqrt(sum);
+}
+}  // namespace
+
 std::vector<PointMatch> DescriptorMatches(const std::vector<Keypoint>& qk, const cv::Mat& qd,
                                           const std::vector<Keypoint>& dk, const cv::Mat& dd,
                                           double ratio) {
@@ -504,16 +517,7 @@ std::vector<PointMatch> DescriptorMatches(const std::vector<Keypoint>& qk, const
     std::vector<double> table(static_cast<size_t>(nq) * nd);
     for (int i = 0; i < nq; ++i) {
       for (int j = 0; j < nd; ++j) {
-        double sum = 0.0;
-        if (qd.type() == CV_8U) {
-          sum = HammingDistance(qd.ptr<uint8_t>(i), dd.ptr<uint8_t>(j), qd.cols);
-        } else {
-          const float* a = qd.ptr<float>(i);
-          const float* b = dd.ptr<float>(j);
-          for (int k = 0; k < qd.cols; ++k) sum += (a[k] - b[k]) * (a[k] - b[k]);
-          sum = std::sqrt(sum);
-        }
-        table[static_cast<size_t>(i) * nd + j] = sum;
+        table[static_cast<size_t>(i) * nd + j] = RowDistance(qd, i, dd, j);
       }
     }
     NearestInTable(table.data(), nq, nd, &q_best, &q_second, &q_arg, &d_arg);
@@ -542,16 +546,6 @@ std::vector<PointMatch> GuidedMatches(const std::vector<Keypoint>& qk, const cv:
   }
   const Vec2 c{(geometry.width - 1) / 2.0, (geometry.height - 1) / 2.0};
   const double r2 = radius * radius;
-  const auto distance = [&](int i, int j) {
-    if (qd.type() == CV_8U) {
-      return static_cast<double>(HammingDistance(qd.ptr<uint8_t>(i), dd.ptr<uint8_t>(j), qd.cols));
-    }
-    const float* a = qd.ptr<float>(i);
-    const float* b = dd.ptr<float>(j);
-    double sum = 0.0;
-    for (int k = 0; k < qd.cols; ++k) sum += (a[k] - b[k]) * (a[k] - b[k]);
-    return std::sqrt(sum);
-  };
   // Each database keypoint keeps the nearest query keypoint that chose it.
   std::vector<int> from(dk.size(), -1);
   std::vector<double> best(dk.size(), std::numeric_limits<double>::infinity());
@@ -563,7 +557,7 @@ std::vector<PointMatch> GuidedMatches(const std::vector<Keypoint>& qk, const cv:
     for (size_t j = 0; j < dk.size(); ++j) {
       const double dx = dk[j].x - px, dy = dk[j].y - py;
       if (dx * dx + dy * dy > r2) continue;
-      const double d = distance(static_cast<int>(i), static_cast<int>(j));
+      const double d = RowDistance(qd, static_cast<int>(i), dd, static_cast<int>(j));
       if (d < nearest) {
         nearest = d;
         arg = static_cast<int>(j);
