@@ -182,17 +182,42 @@ void BinaryIvfIndex::Search(const cv::Mat& q, int r, int nprobe, std::vector<Wor
   };
   std::vector<std::vector<Visit>> first(nlist), rest(nlist);
   std::vector<uint32_t> centre_dist(nlist);
-  std::vector<uint64_t> key(nlist);
+  // The nprobe nearest lists by (distance, index), chosen by counting: the distances are at
+  // most bytes * 8, so a histogram finds the cut-off distance, and at it the lowest indices
+  // fill the remaining places. The same lists as a selection by sort, at a fraction of its
+  // cost (it had been half of the search's own time).
+  std::vector<uint32_t> hist(static_cast<size_t>(bytes_) * 8 + 1, 0);
+  std::vector<int> chosen(nlist);
   for (int i = 0; i < q.rows; ++i) {
     HammingAll(pq.data() + static_cast<size_t>(i) * chunks_, coarse_packed_.data(), nlist, chunks_,
                centre_dist.data());
-    for (int c = 0; c < nlist; ++c)
-      key[c] = (static_cast<uint64_t>(centre_dist[c]) << 32) | static_cast<uint32_t>(c);
-    if (nprobe < nlist) std::nth_element(key.begin(), key.begin() + (nprobe - 1), key.end());
-    const auto nearest = std::min_element(key.begin(), key.begin() + nprobe);
-    for (int p = 0; p < nprobe; ++p) {
-      const Visit v{i, static_cast<uint32_t>(key[p] >> 32)};
-      (key.begin() + p == nearest ? first : rest)[static_cast<uint32_t>(key[p])].push_back(v);
+    // The nearest list, (distance, index) smallest, is always among the chosen.
+    int nearest = 0;
+    for (int c = 1; c < nlist; ++c) {
+      if (centre_dist[c] < centre_dist[nearest]) nearest = c;
+    }
+    uint32_t cut = std::numeric_limits<uint32_t>::max();  // every list when nprobe == nlist
+    int at_cut = 0;                                        // lists still taken at the cut-off
+    if (nprobe < nlist) {
+      for (int c = 0; c < nlist; ++c) ++hist[centre_dist[c]];
+      int below = 0;
+      for (cut = centre_dist[nearest]; below + static_cast<int>(hist[cut]) < nprobe; ++cut)
+        below += static_cast<int>(hist[cut]);
+      at_cut = nprobe - below;
+      for (int c = 0; c < nlist; ++c) hist[centre_dist[c]] = 0;
+    }
+    int n = 0;  // without branches: about a third of the lists are taken, in no pattern
+    for (int c = 0; c < nlist; ++c) {
+      const uint32_t d = centre_dist[c];
+      const int equal = d == cut ? 1 : 0;
+      const int take = (d < cut ? 1 : 0) | (equal & (at_cut > 0 ? 1 : 0));
+      at_cut -= equal;
+      chosen[n] = c;
+      n += take;
+    }
+    for (int k = 0; k < n; ++k) {
+      const int c = chosen[k];
+      (c == nearest ? first : rest)[c].push_back(Visit{i, centre_dist[c]});
     }
   }
   // Each list's words are read once for all the descriptors that probe it: the nearest lists

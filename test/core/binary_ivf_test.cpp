@@ -74,6 +74,48 @@ TEST(BinaryIvf, EveryListSearchedIsExactWithTiesByWordId) {
   }
 }
 
+// With fewer lists than all, the lists searched are the nprobe nearest by (distance to the
+// centre, list index), ties being frequent; the answer is the exact r nearest of their words.
+// The reference reads the saved centres and lists, sorts the centres and scans by brute force.
+TEST(BinaryIvf, TheNearestListsByDistanceThenIndexAreSearched) {
+  const Data d = Make(2000, 200, 11);
+  BinaryIvfIndex ivf(d.words, 3, 1);
+  BinaryWriter w;
+  ivf.Save(&w);
+  BinaryReader saved(w.buffer().data(), w.buffer().size(), "lists");
+  const int32_t nlist = saved.Get<int32_t>();
+  const std::vector<uint8_t> centres = saved.GetVector<uint8_t>(static_cast<uint64_t>(nlist) * 32);
+  std::vector<uint32_t> offsets, ids;
+  ReadIvfLists(&saved, nlist, d.words.rows, "lists", &offsets, &ids);
+  const int r = 3;
+  for (bool bound : {false, true}) {
+    ivf.set_bound(bound);
+    for (int nprobe : {1, 2, 7, nlist / 3, nlist - 1}) {
+      std::vector<WordHit> got;
+      ivf.Search(d.queries, r, nprobe, &got);
+      for (int i = 0; i < d.queries.rows; ++i) {
+        const uint8_t* q = d.queries.ptr<uint8_t>(i);
+        std::vector<std::pair<uint32_t, int>> lists;  // (distance, index)
+        for (int c = 0; c < nlist; ++c)
+          lists.emplace_back(HammingDistance(q, centres.data() + 32 * c, 32), c);
+        std::sort(lists.begin(), lists.end());
+        std::vector<std::pair<uint32_t, uint32_t>> words;  // (distance, word id)
+        for (int p = 0; p < nprobe; ++p) {
+          const int c = lists[p].second;
+          for (uint32_t k = offsets[c]; k < offsets[c + 1]; ++k)
+            words.emplace_back(HammingDistance(q, d.words.ptr<uint8_t>(ids[k]), 32), ids[k]);
+        }
+        std::sort(words.begin(), words.end());
+        for (int j = 0; j < r && j < static_cast<int>(words.size()); ++j) {
+          const WordHit& h = got[static_cast<size_t>(i) * r + j];
+          ASSERT_EQ(h.word, words[j].second) << "nprobe " << nprobe << ", query " << i;
+          ASSERT_EQ(h.distance, static_cast<float>(words[j].first)) << "nprobe " << nprobe;
+        }
+      }
+    }
+  }
+}
+
 TEST(BinaryIvf, AFractionOfTheListsFindsNearlyEveryNearestWord) {
   const Data d = Make(5000, 500, 4);
   const BinaryIvfIndex ivf(d.words, 1, 2);
