@@ -197,7 +197,7 @@ void BinaryIvfIndex::Search(const cv::Mat& q, int r, int nprobe, std::vector<Wor
       if (centre_dist[c] < centre_dist[nearest]) nearest = c;
     }
     uint32_t cut = std::numeric_limits<uint32_t>::max();  // every list when nprobe == nlist
-    int at_cut = 0;                                        // lists still taken at the cut-off
+    int at_cut = 0;                                       // lists still taken at the cut-off
     if (nprobe < nlist) {
       for (int c = 0; c < nlist; ++c) ++hist[centre_dist[c]];
       int below = 0;
