@@ -337,6 +337,52 @@ TEST(Features, TransientFillMatchesBruteForceWithFewAndManyMarks) {
   }
 }
 
+// Above about 8.4 Mpx a bright image's sum no longer fits 32 bits: the many-marks fill reads
+// exact sums there too (marks in the last rows, where the integral image is largest).
+TEST(Features, TransientFillIsExactOnImagesAbove8Megapixels) {
+  cv::Mat floor(3100, 3100, CV_8U);  // 9.6 Mpx at about 231: a sum of 2.2e9
+  for (int r = 0; r < floor.rows; ++r) {
+    uint8_t* f = floor.ptr<uint8_t>(r);
+    for (int c = 0; c < floor.cols; ++c) f[c] = static_cast<uint8_t>(230 + (r * 7 + c * 3) % 3);
+  }
+  cv::Mat dots = cv::Mat::zeros(floor.size(), CV_8U);
+  for (int r = floor.rows - 300; r < floor.rows; r += 4) {
+    for (int c = 1; c < floor.cols; c += 4) dots.at<uint8_t>(r, c) = 255;
+  }
+  cv::Mat marked = floor.clone();
+  marked.setTo(255, dots);
+  FeatureOptions o;
+  o.transient_median = 5;
+  o.transient_grow = 1;
+  o.transient_fill = 11;
+  o.transient_polarity = MarkPolarity::kBright;
+  const cv::Mat filled = FeatureExtractor(o).RemoveTransients(marked);
+  cv::Mat marks;
+  cv::dilate(dots, marks, cv::Mat::ones(3, 3, CV_8U));
+  ASSERT_GT(cv::countNonZero(marks) * 121.0, 2.0 * floor.total());  // the integral-image path
+  int wrong = 0;
+  for (int r = floor.rows - 302; r < floor.rows; ++r) {
+    for (int c = 0; c < floor.cols; ++c) {
+      if (!marks.at<uint8_t>(r, c)) continue;
+      int n = 0, total = 0;
+      for (int y = std::max(0, r - 5); y < std::min(floor.rows, r + 6); ++y) {
+        for (int x = std::max(0, c - 5); x < std::min(floor.cols, c + 6); ++x) {
+          if (marks.at<uint8_t>(y, x)) continue;
+          ++n;
+          total += marked.at<uint8_t>(y, x);
+        }
+      }
+      ASSERT_GT(n, 0);
+      wrong += filled.at<uint8_t>(r, c) != static_cast<uint8_t>((total + n / 2) / n) ? 1 : 0;
+    }
+  }
+  EXPECT_EQ(wrong, 0);
+  cv::Mat changed;  // and nothing else changed
+  cv::compare(filled, marked, changed, cv::CMP_NE);
+  changed.setTo(0, marks);
+  EXPECT_EQ(cv::countNonZero(changed), 0);
+}
+
 // The grid extractor's keypoints come strongest-chosen first (not grouped by pyramid level),
 // each with the descriptor ORB computes for it.
 TEST(Features, GridKeypointsKeepTheirRankAndDescriptors) {
