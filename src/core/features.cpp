@@ -373,27 +373,18 @@ cv::Mat FeatureExtractor::RemoveTransients(const cv::Mat& gray) const {
   cv::Mat keep, kept, sum, count;
   cv::threshold(marks, keep, 0, 1, cv::THRESH_BINARY_INV);  // 1 where unmarked
   cv::multiply(gray, keep, kept);
-  // 32-bit sums while the whole image's sum fits (up to about 8.4 Mpx), exact doubles above.
-  const bool wide = 255.0 * static_cast<double>(gray.total()) > 2147483647.0;
-  cv::integral(kept, sum, wide ? CV_64F : CV_32S);
+  // Exact double sums: a bright image's 32-bit integral wraps above about 8.4 Mpx.
+  cv::integral(kept, sum, CV_64F);
   cv::integral(keep, count, CV_32S);
-  const auto fill_from = [&](auto zero) {
-    using T = decltype(zero);
-    for (const cv::Point& p : marked) {
-      const int r0 = std::max(0, p.y - reach), r1 = std::min(gray.rows, p.y + reach + 1);
-      const int c0 = std::max(0, p.x - reach), c1 = std::min(gray.cols, p.x + reach + 1);
-      const T* s0 = sum.ptr<T>(r0);
-      const T* s1 = sum.ptr<T>(r1);
-      const int32_t* n0 = count.ptr<int32_t>(r0);
-      const int32_t* n1 = count.ptr<int32_t>(r1);
-      fill(p, n1[c1] - n1[c0] - n0[c1] + n0[c0],
-           static_cast<int32_t>(s1[c1] - s1[c0] - s0[c1] + s0[c0]));
-    }
-  };
-  if (wide) {
-    fill_from(0.0);
-  } else {
-    fill_from(int32_t{0});
+  for (const cv::Point& p : marked) {
+    const int r0 = std::max(0, p.y - reach), r1 = std::min(gray.rows, p.y + reach + 1);
+    const int c0 = std::max(0, p.x - reach), c1 = std::min(gray.cols, p.x + reach + 1);
+    const double* s0 = sum.ptr<double>(r0);
+    const double* s1 = sum.ptr<double>(r1);
+    const int32_t* n0 = count.ptr<int32_t>(r0);
+    const int32_t* n1 = count.ptr<int32_t>(r1);
+    fill(p, n1[c1] - n1[c0] - n0[c1] + n0[c0],
+         static_cast<int32_t>(s1[c1] - s1[c0] - s0[c1] + s0[c0]));
   }
   return out;
 }

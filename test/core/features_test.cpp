@@ -291,6 +291,44 @@ TEST(Features, TransientMarksAreFilledAndKeypointsLeaveThem) {
   EXPECT_EQ(FeatureExtractor(q).Extract(marked).size(), 250u);
 }
 
+// Bright marks filled by the mean of the unmarked pixels of an 11 x 11 window.
+FeatureOptions BrightMarkFill() {
+  FeatureOptions o;
+  o.transient_median = 5;
+  o.transient_grow = 1;
+  o.transient_fill = 11;
+  o.transient_polarity = MarkPolarity::kBright;
+  return o;
+}
+
+// `marked` with each pixel of `marks` from row `first_row` on replaced by the brute-force fill:
+// the mean of the unmarked pixels of its 11 x 11 window, the 5 x 5 median where all are marked
+// (counted in `*all_marked`).
+cv::Mat BruteForceFill(const cv::Mat& marked, const cv::Mat& marks, int first_row,
+                       int* all_marked) {
+  cv::Mat median;
+  cv::medianBlur(marked, median, 5);
+  cv::Mat want = marked.clone();
+  *all_marked = 0;
+  for (int r = first_row; r < marked.rows; ++r) {
+    for (int c = 0; c < marked.cols; ++c) {
+      if (!marks.at<uint8_t>(r, c)) continue;
+      int n = 0, total = 0;
+      for (int y = std::max(0, r - 5); y < std::min(marked.rows, r + 6); ++y) {
+        for (int x = std::max(0, c - 5); x < std::min(marked.cols, c + 6); ++x) {
+          if (marks.at<uint8_t>(y, x)) continue;
+          ++n;
+          total += marked.at<uint8_t>(y, x);
+        }
+      }
+      *all_marked += n == 0 ? 1 : 0;
+      want.at<uint8_t>(r, c) =
+          n > 0 ? static_cast<uint8_t>((total + n / 2) / n) : median.at<uint8_t>(r, c);
+    }
+  }
+  return want;
+}
+
 // The fill of RemoveTransients sums each mark's window directly when marks are few and reads
 // integral images when they are many: both give the mean of the unmarked pixels of the
 // window (the median where all are marked), here against a brute-force fill of known marks.
@@ -306,32 +344,11 @@ TEST(Features, TransientFillMatchesBruteForceWithFewAndManyMarks) {
     }
     cv::Mat marked = floor.clone();
     marked.setTo(250, dots);
-    FeatureOptions o;
-    o.transient_median = 5;
-    o.transient_grow = 1;
-    o.transient_fill = 11;
-    o.transient_polarity = MarkPolarity::kBright;
-    const cv::Mat filled = FeatureExtractor(o).RemoveTransients(marked);
+    const cv::Mat filled = FeatureExtractor(BrightMarkFill()).RemoveTransients(marked);
     cv::Mat marks;  // the dots grown by one pixel
     cv::dilate(dots, marks, cv::Mat::ones(3, 3, CV_8U));
-    cv::Mat median;
-    cv::medianBlur(marked, median, 5);
-    cv::Mat want = marked.clone();
-    for (int r = 0; r < floor.rows; ++r) {
-      for (int c = 0; c < floor.cols; ++c) {
-        if (!marks.at<uint8_t>(r, c)) continue;
-        int n = 0, total = 0;
-        for (int y = std::max(0, r - 5); y < std::min(floor.rows, r + 6); ++y) {
-          for (int x = std::max(0, c - 5); x < std::min(floor.cols, c + 6); ++x) {
-            if (marks.at<uint8_t>(y, x)) continue;
-            ++n;
-            total += marked.at<uint8_t>(y, x);
-          }
-        }
-        want.at<uint8_t>(r, c) =
-            n > 0 ? static_cast<uint8_t>((total + n / 2) / n) : median.at<uint8_t>(r, c);
-      }
-    }
+    int all_marked = 0;
+    const cv::Mat want = BruteForceFill(marked, marks, 0, &all_marked);
     EXPECT_EQ(cv::norm(filled, want, cv::NORM_INF), 0.0) << "dots every " << spacing << " px";
     EXPECT_GT(cv::countNonZero(marks), 0);
   }
@@ -351,31 +368,17 @@ TEST(Features, TransientFillIsExactOnImagesAbove8Megapixels) {
   }
   cv::Mat marked = floor.clone();
   marked.setTo(255, dots);
-  FeatureOptions o;
-  o.transient_median = 5;
-  o.transient_grow = 1;
-  o.transient_fill = 11;
-  o.transient_polarity = MarkPolarity::kBright;
-  const cv::Mat filled = FeatureExtractor(o).RemoveTransients(marked);
+  const cv::Mat filled = FeatureExtractor(BrightMarkFill()).RemoveTransients(marked);
   cv::Mat marks;
   cv::dilate(dots, marks, cv::Mat::ones(3, 3, CV_8U));
   ASSERT_GT(cv::countNonZero(marks) * 121.0, 2.0 * floor.total());  // the integral-image path
-  int wrong = 0;
-  for (int r = floor.rows - 302; r < floor.rows; ++r) {
-    for (int c = 0; c < floor.cols; ++c) {
-      if (!marks.at<uint8_t>(r, c)) continue;
-      int n = 0, total = 0;
-      for (int y = std::max(0, r - 5); y < std::min(floor.rows, r + 6); ++y) {
-        for (int x = std::max(0, c - 5); x < std::min(floor.cols, c + 6); ++x) {
-          if (marks.at<uint8_t>(y, x)) continue;
-          ++n;
-          total += marked.at<uint8_t>(y, x);
-        }
-      }
-      ASSERT_GT(n, 0);
-      wrong += filled.at<uint8_t>(r, c) != static_cast<uint8_t>((total + n / 2) / n) ? 1 : 0;
-    }
-  }
+  int all_marked = 0;
+  const cv::Mat want = BruteForceFill(marked, marks, floor.rows - 302, &all_marked);
+  ASSERT_EQ(all_marked, 0);
+  cv::Mat differs;
+  cv::compare(filled, want, differs, cv::CMP_NE);
+  differs.setTo(0, ~marks);
+  const int wrong = cv::countNonZero(differs);
   EXPECT_EQ(wrong, 0);
   cv::Mat changed;  // and nothing else changed
   cv::compare(filled, marked, changed, cv::CMP_NE);
