@@ -181,6 +181,7 @@ bool LocalizerServer::OnGetInfo(ground_texture_bow::GetInfo::Request&,
     {
       std::lock_guard<std::mutex> lock(state_mutex_);
       res.scale_source = scale_source_;
+      res.last_error = last_error_;
       res.localized = !last_fix_time_.isZero() &&
                       (ros::Time::now() - last_fix_time_).toSec() <= options_.localized_timeout;
     }

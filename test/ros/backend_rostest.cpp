@@ -233,40 +233,57 @@ TEST(Backend, ClosuresCorrectTheOdometryAndAWrongOneIsIgnored) {
     loop_pub.publish(*wrong);
   };
 
-  // Replay: odometry and TF first, then the image; the next only once the localizer is done.
+  // Replay: odometry, TF and camera_info first, then the image; the next only once the localizer
+  // has dealt with it (no limit but a cap against a hang: the test waits on the node's events).
+  // An image that overtook the first camera_info is refused by the node and sent again
+  // (rostest_util.h, OvertookTheFirstCameraInfo).
   // Polled through one persistent connection: a busy machine sometimes refuses one of the many
   // connections a call each would open, and a failed poll is only retried.
   ASSERT_TRUE(ros::service::waitForService("/localizer/get_info", ros::Duration(30)));
   ros::ServiceClient info_client =
       nh.serviceClient<ground_texture_bow::GetInfo>("/localizer/get_info", true);
-  for (size_t i = 0; i < frames.size(); ++i) {
-    odom_pub.publish(frames[i].odom);
-    tf_pub.publish(frames[i].tf);
-    info_pub.publish(frames[i].info);
-    ros::WallDuration(0.01).sleep();
-    img_pub.publish(frames[i].image);
-    const ros::WallTime limit = ros::WallTime::now() + ros::WallDuration(10);
-    while (ros::WallTime::now() < limit) {
+  auto poll = [&]() {
+    while (true) {
       ground_texture_bow::GetInfo srv;
       if (!info_client.isValid()) {
         info_client = nh.serviceClient<ground_texture_bow::GetInfo>("/localizer/get_info", true);
       }
-      if (!info_client.call(srv)) {
-        ros::WallDuration(0.05).sleep();
-        continue;
-      }
-      const auto& info = srv.response;
-      if (info.images_received >= i + 1 &&
-          info.images_processed + info.images_dropped + info.images_rejected >=
-              info.images_received) {
-        break;
-      }
+      if (info_client.call(srv)) return srv.response;
+      ros::WallDuration(0.05).sleep();
+    }
+  };
+  auto state = poll();
+  for (size_t i = 0; i < frames.size(); ++i) {
+    odom_pub.publish(frames[i].odom);
+    tf_pub.publish(frames[i].tf);
+    for (int attempt = 1;; ++attempt) {
+      info_pub.publish(frames[i].info);
       ros::WallDuration(0.01).sleep();
+      img_pub.publish(frames[i].image);
+      const ros::WallTime cap = ros::WallTime::now() + ros::WallDuration(120);
+      auto now = poll();
+      while (!(now.images_received >= state.images_received + 1 &&
+               now.images_processed + now.images_dropped + now.images_rejected >=
+                   now.images_received)) {
+        ASSERT_LT(ros::WallTime::now(), cap)
+            << "image " << i << " not dealt with after 120 s: received " << now.images_received
+            << ", processed " << now.images_processed << ", dropped " << now.images_dropped
+            << ", rejected " << now.images_rejected << "; last error: " << now.last_error;
+        ros::WallDuration(0.01).sleep();
+        now = poll();
+      }
+      const bool again = OvertookTheFirstCameraInfo(state, now, true);
+      state = now;
+      if (!again) break;
+      std::fprintf(stderr, "image %zu overtook the first camera_info; sent again\n", i);
+      ASSERT_LT(attempt, 10) << "image " << i << " refused 10 times: " << now.last_error;
     }
     if (!wrong) inject();
   }
   const auto info = Info("/localizer");
-  EXPECT_EQ(info.images_processed, frames.size());
+  EXPECT_EQ(info.images_processed, frames.size())
+      << "received " << info.images_received << ", dropped " << info.images_dropped
+      << ", rejected " << info.images_rejected << "; last error: " << info.last_error;
   ros::WallDuration(1.0).sleep();
   ASSERT_TRUE(wrong) << "no closure past the drive's middle to build the wrong one from";
   const size_t q = index_of.at(wrong->query_stamp), m = index_of.at(wrong->match_stamp);
