@@ -179,8 +179,25 @@ void LocalizerServer::ImageCallback(const sensor_msgs::ImageConstPtr& msg) {
 }
 
 void LocalizerServer::CameraInfoCallback(const sensor_msgs::CameraInfoConstPtr& msg) {
-  std::lock_guard<std::mutex> lock(camera_mutex_);
-  camera_info_ = msg;
+  {
+    std::lock_guard<std::mutex> lock(camera_mutex_);
+    camera_info_ = msg;
+  }
+  // The first one releases an image that came before it (the image and its camera_info travel
+  // on two connections, so either may arrive first).
+  if (!camera_info_seen_.exchange(true)) WakeWorker();
+}
+
+std::string LocalizerServer::WaitingForCameraInfo() const {
+  return "waiting for camera_info on " + info_topic_ +
+         ": the scale comes from it (~meters_per_pixel is 0, no map is loaded) and no "
+         "sensor_msgs/CameraInfo has arrived; the newest image waits for it";
+}
+
+void LocalizerServer::WakeWorker() {
+  // Under the lock: the worker reads the condition under it, so the wake-up is not lost.
+  std::lock_guard<std::mutex> lock(slot_mutex_);
+  slot_cv_.notify_one();
 }
 
 std::optional<double> LocalizerServer::CameraHeight(const std::string& frame, std::string* source) {
@@ -371,6 +388,10 @@ void LocalizerServer::Enqueue(Pending p) {
       if (dt > 0) input_rate_hz_ = 0.8 * input_rate_hz_.load() + 0.2 / dt;
     }
     last_image_time_ = now;
+    if (WaitsForCameraInfo()) {
+      last_error_ = WaitingForCameraInfo();
+      ROS_WARN_THROTTLE(5.0, "ground_texture_bow: %s", last_error_.c_str());
+    }
   }
   // Notified under the lock: once the destructor holds the lock, no callback is still between
   // the hand-over and the notification (ThreadSanitizer found one signalling the condition
@@ -387,7 +408,9 @@ void LocalizerServer::WorkerLoop() {
     Pending msg;
     {
       std::unique_lock<std::mutex> lock(slot_mutex_);
-      slot_cv_.wait(lock, [this] { return stop_ || static_cast<bool>(pending_); });
+      slot_cv_.wait(lock, [this] {
+        return stop_ || (static_cast<bool>(pending_) && !WaitsForCameraInfo());
+      });
       if (stop_) return;
       msg = std::move(pending_);
       pending_ = Pending();
@@ -758,6 +781,8 @@ void LocalizerServer::Diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat
   if (last_autosave_failed_) {
     stat.summary(diagnostic_msgs::DiagnosticStatus::ERROR,
                  "autosave to " + options_.autosave_path + " failed: " + last_error);
+  } else if (WaitsForCameraInfo() && received_.load() > 0) {
+    stat.summary(diagnostic_msgs::DiagnosticStatus::WARN, WaitingForCameraInfo());
   } else if (recent_rejected > 0 || recent_requests > 0 || recent_missing > 0 ||
              recent_unusable > 0) {
     stat.summary(diagnostic_msgs::DiagnosticStatus::WARN,

@@ -133,6 +133,7 @@ bool LocalizerServer::OnLoadMap(ground_texture_bow::LoadMap::Request& req,
       std::lock_guard<std::mutex> lock(state_mutex_);
       scale_source_ = "the map " + req.path;
     }
+    if (adopt) WakeWorker();  // an image waiting for camera_info has its scale now
     ForgetMapState();
     return MakeStatus(Status::OK,
                       "loaded " + std::to_string(res.keyframes) + " keyframes from " + req.path);

@@ -184,26 +184,12 @@ inline ground_texture_bow::GetInfo::Response WaitUntilHandled(const std::string&
   }
 }
 
-// Whether the node refused an image because no camera_info had arrived yet, when the frame came
-// with one: the camera_info and the image travel on two connections and are handled by two
-// callbacks, so the image can overtake the first camera_info (on a busy machine it does). The
-// node refuses such an image ("the scale is unknown: ... no sensor_msgs/CameraInfo has
-// arrived"), as it should; the frame is then sent again. Any other refusal stays counted.
-inline bool OvertookTheFirstCameraInfo(const ground_texture_bow::GetInfo::Response& before,
-                                       const ground_texture_bow::GetInfo::Response& after,
-                                       bool frame_has_info) {
-  return frame_has_info && after.images_rejected == before.images_rejected + 1 &&
-         after.last_error.find("no sensor_msgs/CameraInfo has arrived") != std::string::npos;
-}
-
 // Publishes each frame's TF, camera_info and image at `rate` Hz at most: each image only once
 // the node has dealt with the previous one (so that a slow machine or a sanitizer build drops
-// nothing), then waits until the node has dealt with every image it received. `resent` (when
-// given) counts the frames sent again because their image overtook the first camera_info: each
-// is one refused image in the node's images_rejected.
+// nothing), then waits until the node has dealt with every image it received. An image that
+// overtakes the first camera_info waits for it in the node.
 inline void Replay(const std::vector<Frame>& frames, const std::string& topic,
-                   const std::string& node, double rate, size_t* resent = nullptr) {
-  if (resent) *resent = 0;
+                   const std::string& node, double rate) {
   ros::NodeHandle nh;
   ros::Publisher img_pub = nh.advertise<sensor_msgs::Image>(topic, 10);
   ros::Publisher tf_pub = nh.advertise<tf2_msgs::TFMessage>("/tf", 100);
@@ -220,27 +206,15 @@ inline void Replay(const std::vector<Frame>& frames, const std::string& topic,
     ASSERT_GT(info_pub.getNumSubscribers(), 0u) << "nobody subscribes to " << info_topic;
   }
   ros::WallDuration(0.5).sleep();
-  auto info = Info(node);
+  const uint64_t before = Info(node).images_received;
   for (size_t i = 0; i < frames.size(); ++i) {
     const Frame& f = frames[i];
-    for (int attempt = 1;; ++attempt) {
-      if (f.tf) tf_pub.publish(f.tf);
-      if (f.info) info_pub.publish(f.info);
-      ros::WallDuration(0.01).sleep();  // usually enough for the TF and camera_info to go first
-      img_pub.publish(f.image);
-      ros::WallDuration(1.0 / rate).sleep();
-      const auto after = WaitUntilHandled(node, info.images_received + 1);
-      const bool again = OvertookTheFirstCameraInfo(info, after, static_cast<bool>(f.info));
-      info = after;
-      if (!again) break;
-      if (resent) ++*resent;
-      std::fprintf(stderr, "%s: frame %zu overtook the first camera_info; sent again\n",
-                   node.c_str(), i);
-      if (attempt == 10) {
-        ADD_FAILURE() << node << ": frame " << i << " refused 10 times: " << info.last_error;
-        break;
-      }
-    }
+    if (f.tf) tf_pub.publish(f.tf);
+    if (f.info) info_pub.publish(f.info);
+    ros::WallDuration(0.01).sleep();  // usually enough for the TF and camera_info to go first
+    img_pub.publish(f.image);
+    ros::WallDuration(1.0 / rate).sleep();
+    WaitUntilHandled(node, before + i + 1);
   }
 }
 

@@ -113,6 +113,14 @@ class LocalizerServer {
   void CompressedCallback(const sensor_msgs::CompressedImageConstPtr& msg);
   void Enqueue(Pending p);
   void WorkerLoop();
+  // Whether images must wait for the first camera_info: the scale comes from it (~meters_per_pixel
+  // 0, no map) and none has arrived. The waiting image stays in the slot (a newer one replaces
+  // it, counted as a drop); the first camera_info, or a map's scale, releases it.
+  bool WaitsForCameraInfo() const {
+    return options_.meters_per_pixel <= 0 && !scale_known_ && !camera_info_seen_;
+  }
+  void WakeWorker();  // after something WaitsForCameraInfo() reads changed
+  std::string WaitingForCameraInfo() const;  // what the node says while images wait
   void ProcessImage(const Pending& msg);
   std::optional<gtbow::Pose2D> LookupFootprint(const std::string& frame, const ros::Time& stamp,
                                                const std::string& target, bool warn);
@@ -197,6 +205,7 @@ class LocalizerServer {
       keyframe_poses_stamp_ns_{0};           // header stamp of the newest keyframe_poses applied
   std::atomic<bool> scale_known_{false};     // explicit, from the map, or from camera_info
   std::atomic<bool> scale_from_map_{false};  // a loaded map's: the camera is checked against it
+  std::atomic<bool> camera_info_seen_{false};  // a sensor_msgs/CameraInfo has arrived
   std::atomic<double> last_processing_ms_{0.0};
   std::atomic<double> input_rate_hz_{0.0};
 
