@@ -258,22 +258,15 @@ TEST(Backend, ClosuresCorrectTheOdometryAndAWrongOneIsIgnored) {
     ros::WallDuration(0.01).sleep();
     img_pub.publish(frames[i].image);
     const ros::WallTime cap = ros::WallTime::now() + ros::WallDuration(120);
-    for (auto now = poll(); !(now.images_received >= i + 1 &&
-                              now.images_processed + now.images_dropped + now.images_rejected >=
-                                  now.images_received);
-         now = poll()) {
+    for (auto now = poll(); !Handled(now, i + 1); now = poll()) {
       ASSERT_LT(ros::WallTime::now(), cap)
-          << "image " << i << " not dealt with after 120 s: received " << now.images_received
-          << ", processed " << now.images_processed << ", dropped " << now.images_dropped
-          << ", rejected " << now.images_rejected << "; last error: " << now.last_error;
+          << "image " << i << " not dealt with after 120 s: " << Counters(now);
       ros::WallDuration(0.01).sleep();
     }
     if (!wrong) inject();
   }
   const auto info = Info("/localizer");
-  EXPECT_EQ(info.images_processed, frames.size())
-      << "received " << info.images_received << ", dropped " << info.images_dropped
-      << ", rejected " << info.images_rejected << "; last error: " << info.last_error;
+  EXPECT_EQ(info.images_processed, frames.size()) << Counters(info);
   ros::WallDuration(1.0).sleep();
   ASSERT_TRUE(wrong) << "no closure past the drive's middle to build the wrong one from";
   const size_t q = index_of.at(wrong->query_stamp), m = index_of.at(wrong->match_stamp);

@@ -4,8 +4,6 @@
 // base's pose (REP-105), holds a fix that disagrees with odometry, relocalises a kidnapped robot,
 // republishes map -> odom between fixes, takes amcl's initialpose, and refuses a camera whose
 // scale is not the map's. Images that come before the first camera_info wait for it.
-#include <functional>
-
 #include <opencv2/calib3d.hpp>
 
 #include "rostest_util.h"
@@ -497,20 +495,9 @@ TEST(Robot, ImagesWaitForTheFirstCameraInfo) {
   ASSERT_GT(img_pub.getNumSubscribers(), 0u);
   ASSERT_GT(info_pub.getNumSubscribers(), 0u);
   ros::WallDuration(0.5).sleep();
-  // Waits (with a cap against a hang) until `done` holds for the node's counters.
-  auto until = [](const std::function<bool(const ground_texture_bow::GetInfo::Response&)>& done) {
-    const ros::WallTime cap = ros::WallTime::now() + ros::WallDuration(60);
-    auto info = Info("/waiting");
-    while (!done(info) && ros::WallTime::now() < cap) {
-      ros::WallDuration(0.02).sleep();
-      info = Info("/waiting");
-    }
-    return info;
-  };
-
   tf_pub.publish(mapping[0].tf);
   img_pub.publish(mapping[0].image);
-  auto info = until([](const auto& i) { return i.images_received >= 1; });
+  auto info = WaitForInfo("/waiting", [](const auto& i) { return i.images_received >= 1; });
   ASSERT_EQ(info.images_received, 1u);
   EXPECT_EQ(info.images_processed, 0u);
   EXPECT_EQ(info.images_rejected, 0u) << info.last_error;
@@ -521,7 +508,7 @@ TEST(Robot, ImagesWaitForTheFirstCameraInfo) {
 
   tf_pub.publish(mapping[1].tf);
   img_pub.publish(mapping[1].image);
-  info = until([](const auto& i) { return i.images_dropped >= 1; });
+  info = WaitForInfo("/waiting", [](const auto& i) { return i.images_dropped >= 1; });
   EXPECT_EQ(info.images_received, 2u);
   EXPECT_EQ(info.images_dropped, 1u) << "the newer image replaces the waiting one";
   EXPECT_EQ(info.images_processed, 0u);
@@ -539,7 +526,7 @@ TEST(Robot, ImagesWaitForTheFirstCameraInfo) {
       << st.status.message;
 
   info_pub.publish(mapping[1].info);
-  info = until([](const auto& i) { return i.images_processed >= 1; });
+  info = WaitForInfo("/waiting", [](const auto& i) { return i.images_processed >= 1; });
   EXPECT_EQ(info.images_processed, 1u) << "the first camera_info releases the waiting image";
   EXPECT_EQ(info.images_dropped, 1u);
   EXPECT_EQ(info.images_rejected, 0u) << info.last_error;

@@ -158,30 +158,42 @@ inline ground_texture_bow::GetInfo::Response Info(const std::string& node) {
   }
 }
 
-// Waits until `node` has dealt with (processed, dropped or rejected) every image it received and
-// has received at least `count`; returns its counters then. No limit of its own but a generous
-// cap against a hang (a failure naming the counters): it waits on the node's events, not on the
-// machine's speed.
-inline ground_texture_bow::GetInfo::Response WaitUntilHandled(const std::string& node,
-                                                              uint64_t count) {
+// Whether a node has received at least `count` images and dealt with (processed, dropped or
+// rejected) every image it received.
+inline bool Handled(const ground_texture_bow::GetInfo::Response& info, uint64_t count) {
+  return info.images_received >= count &&
+         info.images_processed + info.images_dropped + info.images_rejected >=
+             info.images_received;
+}
+
+inline std::string Counters(const ground_texture_bow::GetInfo::Response& info) {
+  return "received " + std::to_string(info.images_received) + ", processed " +
+         std::to_string(info.images_processed) + ", dropped " +
+         std::to_string(info.images_dropped) + ", rejected " +
+         std::to_string(info.images_rejected) + "; last error: " + info.last_error;
+}
+
+// Polls `node`'s get_info until `done` holds and returns its answer then. No limit of its own but
+// a generous cap against a hang (a failure naming the counters): it waits on the node's events,
+// not on the machine's speed.
+template <class Done>
+ground_texture_bow::GetInfo::Response WaitForInfo(const std::string& node, Done done) {
   const ros::WallTime cap = ros::WallTime::now() + ros::WallDuration(120);
   while (true) {
     const auto info = Info(node);
-    if (info.images_received >= count &&
-        info.images_processed + info.images_dropped + info.images_rejected >=
-            info.images_received) {
-      return info;
-    }
+    if (done(info)) return info;
     if (ros::WallTime::now() > cap) {
-      ADD_FAILURE() << node << " has not dealt with its images after 120 s: received "
-                    << info.images_received << " (waiting for " << count << "), processed "
-                    << info.images_processed << ", dropped " << info.images_dropped
-                    << ", rejected " << info.images_rejected << "; last error: "
-                    << info.last_error;
+      ADD_FAILURE() << node << ": still waiting after 120 s: " << Counters(info);
       return info;
     }
     ros::WallDuration(0.02).sleep();
   }
+}
+
+// Waits until `node` has received at least `count` images and dealt with all it received.
+inline ground_texture_bow::GetInfo::Response WaitUntilHandled(const std::string& node,
+                                                              uint64_t count) {
+  return WaitForInfo(node, [count](const auto& info) { return Handled(info, count); });
 }
 
 // Publishes each frame's TF, camera_info and image at `rate` Hz at most: each image only once
