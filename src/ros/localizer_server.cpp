@@ -408,9 +408,8 @@ void LocalizerServer::WorkerLoop() {
     Pending msg;
     {
       std::unique_lock<std::mutex> lock(slot_mutex_);
-      slot_cv_.wait(lock, [this] {
-        return stop_ || (static_cast<bool>(pending_) && !WaitsForCameraInfo());
-      });
+      slot_cv_.wait(
+          lock, [this] { return stop_ || (static_cast<bool>(pending_) && !WaitsForCameraInfo()); });
       if (stop_) return;
       msg = std::move(pending_);
       pending_ = Pending();

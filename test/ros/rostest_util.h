@@ -162,8 +162,7 @@ inline ground_texture_bow::GetInfo::Response Info(const std::string& node) {
 // rejected) every image it received.
 inline bool Handled(const ground_texture_bow::GetInfo::Response& info, uint64_t count) {
   return info.images_received >= count &&
-         info.images_processed + info.images_dropped + info.images_rejected >=
-             info.images_received;
+         info.images_processed + info.images_dropped + info.images_rejected >= info.images_received;
 }
 
 inline std::string Counters(const ground_texture_bow::GetInfo::Response& info) {

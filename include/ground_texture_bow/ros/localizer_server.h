@@ -119,7 +119,7 @@ class LocalizerServer {
   bool WaitsForCameraInfo() const {
     return options_.meters_per_pixel <= 0 && !scale_known_ && !camera_info_seen_;
   }
-  void WakeWorker();  // after something WaitsForCameraInfo() reads changed
+  void WakeWorker();                         // after something WaitsForCameraInfo() reads changed
   std::string WaitingForCameraInfo() const;  // what the node says while images wait
   void ProcessImage(const Pending& msg);
   std::optional<gtbow::Pose2D> LookupFootprint(const std::string& frame, const ros::Time& stamp,
@@ -202,9 +202,9 @@ class LocalizerServer {
       rejected_requests_{0}, missing_tf_{0}, fixes_{0}, loop_closures_{0}, failed_fixes_{0},
       held_closures_{0}, held_fixes_{0}, relocalizations_{0}, sequence_queries_{0}, unusable_tf_{0},
       views_added_{0}, keyframes_retired_{0}, keyframes_reposed_{0}, pose_updates_refused_{0},
-      keyframe_poses_stamp_ns_{0};           // header stamp of the newest keyframe_poses applied
-  std::atomic<bool> scale_known_{false};     // explicit, from the map, or from camera_info
-  std::atomic<bool> scale_from_map_{false};  // a loaded map's: the camera is checked against it
+      keyframe_poses_stamp_ns_{0};             // header stamp of the newest keyframe_poses applied
+  std::atomic<bool> scale_known_{false};       // explicit, from the map, or from camera_info
+  std::atomic<bool> scale_from_map_{false};    // a loaded map's: the camera is checked against it
   std::atomic<bool> camera_info_seen_{false};  // a sensor_msgs/CameraInfo has arrived
   std::atomic<double> last_processing_ms_{0.0};
   std::atomic<double> input_rate_hz_{0.0};
