@@ -175,6 +175,8 @@ const std::vector<Field>& Fields() {
       Verify("guided_radius", &LocalizationOptions::guided_radius),
       Verify("guided_max_distance", &LocalizationOptions::guided_max_distance),
       Verify("guided_seed_inliers", &LocalizationOptions::guided_seed_inliers),
+      Verify("guided_repeat_check", &LocalizationOptions::guided_repeat_check),
+      Verify("guided_repeat_candidates", &LocalizationOptions::guided_repeat_candidates),
       VerifyPose("min_inliers", &PoseOptions::min_inliers),
       VerifyPose("inlier_threshold", &PoseOptions::inlier_threshold),
       VerifyPose("max_iterations", &PoseOptions::max_iterations),

@@ -386,6 +386,26 @@ Localization Localizer::Localize(const ProcessedImage& image) const {
       return "other image size";
     return Damaged(id);
   };
+  if (verification_.guided_repeat_check) {
+    // A keyframe as a query (its stored keypoints and descriptors, encoded; QueryKeyframe's),
+    // for the repeat check of guided matching; mutex_ is held (shared) throughout.
+    map.query_of = [this](uint32_t id) {
+      if (!options_.keep_descriptors) return BowVector();
+      const detail::KeyframeView v = View(id);
+      ImageFeatures f;
+      f.keypoints = detail::PayloadKeypoints(v);
+      f.descriptors = detail::PayloadDescriptors(v, descriptor_cols_, descriptor_type_).clone();
+      return encoder_->Encode(f);
+    };
+    map.retrieve = [this](const BowVector& q, uint32_t self, size_t k) {
+      auto r = database_->Query(q, k + 1, true);
+      r.erase(std::remove_if(r.begin(), r.end(),
+                             [self](const QueryResult& x) { return x.image == self; }),
+              r.end());
+      PrefetchPayloads(r, r.size());
+      return r;
+    };
+  }
   const auto results =
       database_->Query(image.bow, static_cast<size_t>(verification_.candidates), true);
   PrefetchPayloads(results, results.size());

@@ -187,6 +187,12 @@ void LocalizationOptions::Check() const {
       !std::isfinite(guided_max_distance)) {
     throw std::invalid_argument("localization: guided_radius and guided_max_distance must be >= 0");
   }
+  if (guided_repeat_check && !(guided_radius > 0.0)) {
+    throw std::invalid_argument("localization: guided_repeat_check needs guided_radius > 0");
+  }
+  if (guided_repeat_candidates < 1) {
+    throw std::invalid_argument("localization: guided_repeat_candidates must be >= 1");
+  }
   if (guided_seed_inliers < 2) {
     throw std::invalid_argument("localization: guided_seed_inliers must be >= 2");
   }
@@ -603,6 +609,42 @@ PoseEstimate VerifyGuided(const QueryResult& r, const BowVector& query, const Ma
   return est;
 }
 
+// The repeat check of a pose guided matching found with map image `image`
+// (LocalizationOptions::guided_repeat_check): empty when the image, queried against its own
+// map, verifies nowhere else; else where it verifies.
+std::string RepeatsElsewhere(uint32_t image, const MapAccess& map, const ImageGeometry& geometry,
+                             const LocalizationOptions& o) {
+  if (!map.query_of || !map.retrieve) {
+    throw std::invalid_argument(
+        "guided_repeat_check: the map gives no query of its own images (MapAccess::query_of, "
+        "retrieve)");
+  }
+  const BowVector self = map.query_of(image);
+  if (self.source.empty()) return std::string();
+  const std::vector<QueryResult> results =
+      map.retrieve(self, image, static_cast<size_t>(o.guided_repeat_candidates));
+  const Pose2D own = map.pose(image);
+  const size_t n = std::min(results.size(), static_cast<size_t>(o.guided_repeat_candidates));
+  for (size_t k = 0; k < n; ++k) {
+    const QueryResult& r = results[k];
+    if (r.image == image || (map.unusable && !map.unusable(r.image).empty())) continue;
+    PoseEstimate e = VerifyCandidate(r, self, map, geometry, o);
+    if (!e.success && GuidedSeed(e, o)) e = VerifyGuided(r, self, map, geometry, o, e, nullptr);
+    if (!e.success) continue;
+    const Pose2D& p = e.floor_from_query;
+    const double apart = std::hypot(p.x - own.x, p.y - own.y);
+    const double turned = std::abs(WrapAngle(p.theta - own.theta));
+    if (apart <= o.consensus_distance && turned <= o.consensus_angle) continue;
+    char why[200];
+    std::snprintf(why, sizeof(why),
+                  "keyframe %u repeats elsewhere: it verifies with keyframe %u (%d inliers) "
+                  "%.1f mm and %.1f degrees from its own pose",
+                  image, r.image, e.inliers, 1000.0 * apart, turned * 180.0 / M_PI);
+    return why;
+  }
+  return std::string();
+}
+
 }  // namespace
 
 PoseEstimate VerifyCandidate(const QueryResult& r, const BowVector& query, const MapAccess& map,
@@ -699,11 +741,28 @@ std::vector<PoseEstimate> VerifyEach(const std::vector<QueryResult>& results,
     refused = refused || (poses[k] && !out[k].success);
   }
   if (o.guided_radius > 0.0 && !any && !refused) {
+    std::vector<char> guided(n, 0);
+    std::string repeat;  // the repeat check's finding: the place is ambiguous
     for (size_t k = 0; k < n; ++k) {
       if (!GuidedSeed(out[k], o)) continue;
       out[k] = VerifyGuided(results[k], query, map, geometry, o, out[k],
                             inlier_pixels != nullptr ? &(*inlier_pixels)[k] : nullptr);
-      if (out[k].success) poses[k] = out[k].floor_from_query;
+      if (!out[k].success) continue;
+      poses[k] = out[k].floor_from_query;
+      guided[k] = 1;
+      if (o.guided_repeat_check && repeat.empty()) {
+        repeat = RepeatsElsewhere(results[k].image, map, geometry, o);
+      }
+    }
+    // One guided keyframe that repeats elsewhere makes every guided pose of the query doubtful:
+    // refusing that one alone would leave its copy's pose standing (seen on the held-out photos,
+    // a sand floor with a copy turned 180 degrees).
+    for (size_t k = 0; k < n && !repeat.empty(); ++k) {
+      if (!guided[k]) continue;
+      out[k].success = false;
+      out[k].reason = "guided: " + repeat;
+      out[k].inlier_indices.clear();
+      poses[k].reset();
     }
     ResolveConflicts(poses, &out, o);
   }
@@ -775,7 +834,14 @@ Localization VerifyCandidates(const std::vector<QueryResult>& results, const Bow
       if (!GuidedSeed(seeds[rank], o)) continue;
       PoseEstimate est =
           VerifyGuided(results[rank], query, map, geometry, o, seeds[rank], &loc.inlier_pixels);
-      if (est.success) return answer(rank, std::move(est));
+      if (!est.success) continue;
+      const std::string repeat = o.guided_repeat_check
+                                     ? RepeatsElsewhere(results[rank].image, map, geometry, o)
+                                     : std::string();
+      if (repeat.empty()) return answer(rank, std::move(est));
+      loc.inlier_pixels.clear();  // no guided pose for this query (as VerifyEach)
+      reasons += "; guided: " + repeat;
+      break;
     }
   }
   loc.reason = "none of " + std::to_string(n) + " candidates verified (" + reasons +

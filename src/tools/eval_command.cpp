@@ -329,6 +329,21 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
   // map added (db_pose keeps every keyframe's truth, for relevance).
   std::vector<Pose2D> map_pose = db_pose;
   map.pose = [&](uint32_t i) { return map_pose.at(i); };
+  // A map image as a query and the map's retrieval for it, for the repeat check of guided
+  // matching (verification.guided_repeat_check), as the node's Localizer::Localize gives them.
+  map.query_of = [&](uint32_t i) {
+    ImageFeatures f;
+    f.keypoints = map.keypoints(i);
+    f.descriptors = db_feats.at(i).descriptors;
+    return enc.Encode(f);
+  };
+  map.retrieve = [&](const BowVector& q, uint32_t self, size_t k) {
+    auto r = db.Query(q, k + 1, true);
+    r.erase(std::remove_if(r.begin(), r.end(),
+                           [self](const QueryResult& x) { return x.image == self; }),
+            r.end());
+    return r;
+  };
   std::vector<std::string> db_names;
   for (size_t i = 0; i < db_src.size(); ++i) db_names.push_back(db_src.name(i));
   std::vector<char> db_live(db_pose.size(), 1);  // 0: retired by maintenance

@@ -185,6 +185,48 @@ TEST(Localizer, TrustedVerificationLocalizesRevisitsAndRefusesARepeatedFloor) {
   EXPECT_TRUE(paper.Localize(img).success);
 }
 
+// Guided matching's repeat check through the Localizer (the node's map): a keyframe whose image
+// the map also holds elsewhere (a copy 0.3 m away) gives no guided pose, since queried against
+// its own map it verifies with the copy; without the copy the guided pose stands.
+TEST(Localizer, TheRepeatCheckRefusesGuidedPosesFromAKeyframeWithACopy) {
+  const Scene& s = TheScene();
+  LocalizerOptions o = Options();
+  o.retrieval.verification =
+      LoadRetrievalConfig(GTBOW_CONFIG_DIR "/ablation/changing/guided_repeat_check.yaml")
+          .verification;
+  ASSERT_TRUE(o.retrieval.verification.guided_repeat_check);
+  o.retrieval.verification.max_conflict_ratio = 0.0;  // first verified: the copy is not compared
+  const size_t d = 3;                                 // revisit 1 is database place 3
+  auto map = [&](const LocalizerOptions& opt, bool copy) {
+    auto loc = std::make_unique<Localizer>(s.vocabulary, "test.gtvoc", opt);
+    for (size_t i = 0; i < s.db_images.size(); ++i)
+      loc->Add(loc->Process(s.db_images[i]), 1000 + static_cast<int64_t>(i), s.db_poses[i]);
+    if (copy) {
+      loc->Add(loc->Process(s.db_images[d]), 5000,
+               Pose2D{s.db_poses[d].x + 0.3, s.db_poses[d].y, s.db_poses[d].theta});
+    }
+    return loc;
+  };
+  // Every candidate's ratio-test matches one inlier short: only guided matching gives a pose.
+  const auto plain = map(o, false);
+  const ProcessedImage img = plain->Process(s.revisits[1]);
+  int most = 0;
+  for (const Candidate& c : plain->Query(img, 5, true)) most = std::max(most, c.relative.inliers);
+  ASSERT_GT(most, 0);
+  o.retrieval.verification.pose.min_inliers = most + 1;
+  const Localization kept = map(o, false)->Localize(img);
+  ASSERT_TRUE(kept.success) << kept.reason;
+  const Pose2D& t = s.revisit_poses[1];
+  EXPECT_LT(1000 * std::hypot(kept.estimate.floor_from_query.x - t.x,
+                              kept.estimate.floor_from_query.y - t.y),
+            4.8);
+  const Localization refused = map(o, true)->Localize(img);
+  EXPECT_FALSE(refused.success);
+  EXPECT_NE(refused.reason.find("repeats elsewhere"), std::string::npos) << refused.reason;
+  o.retrieval.verification.guided_repeat_check = false;  // without it, a guided pose
+  EXPECT_TRUE(map(o, true)->Localize(img).success);
+}
+
 TEST(Localizer, CandidatesCarryVerifiedRelativePosesAndNoFixWithoutPoses) {
   const Scene& s = TheScene();
   const auto loc = Mapped(false);  // a SLAM backend's keyframes: no poses

@@ -292,7 +292,8 @@ TEST(PoseChecks, DescriptorMatchesAreMutualNearestNeighboursPassingTheRatioTest)
 
 // Guided matching (issue 28): a faint floor's lasting keypoints whose descriptors have twins
 // elsewhere in the image fail the ratio test; matched near where a 5-inlier hypothesis puts
-// them, they give the pose. Off by default.
+// them, they give the pose. Off by default. With the repeat check, not from a keyframe that
+// verifies elsewhere in its own map.
 TEST(PoseChecks, GuidedMatchingRecoversMatchesTheRatioTestDrops) {
   std::mt19937 rng(11);
   std::uniform_real_distribution<double> u(60.0, 580.0), v(60.0, 420.0);
@@ -402,6 +403,56 @@ TEST(PoseChecks, GuidedMatchingRecoversMatchesTheRatioTestDrops) {
     EXPECT_FALSE(VerifyCandidates({r}, query, map, geo, o).success);
     o.guided_seed_inliers = 4;
   }
+
+  // The repeat check: map image 3 has an exact copy, image 7, placed elsewhere (a floor that
+  // repeats); image 3 queried against its map verifies with 7 far from its own pose, so the
+  // guided pose is refused. With 7 where 3 is (an overlapping neighbour) it is kept.
+  Pose2D copy_pose{1.2, 2.0, M_PI / 2};
+  map.pose = [&](uint32_t i) { return i == 7 ? copy_pose : Pose2D{1.0, 2.0, 0.0}; };
+  int requeried = 0;
+  map.query_of = [&](uint32_t i) {
+    EXPECT_EQ(i, 3u);
+    ++requeried;
+    BowVector v;
+    v.source = dk;
+    v.source_descriptors = dd;
+    return v;
+  };
+  map.retrieve = [&](const BowVector&, uint32_t self, size_t k) {
+    EXPECT_EQ(self, 3u);
+    EXPECT_EQ(k, 5u);
+    QueryResult copy;
+    copy.image = 7;
+    return std::vector<QueryResult>{copy};
+  };
+  o.guided_repeat_check = true;
+  o.guided_repeat_candidates = 5;
+  for (const double conflict : {0.0, 0.5}) {
+    o.max_conflict_ratio = conflict;
+    copy_pose = {1.2, 2.0, M_PI / 2};
+    const Localization refused = VerifyCandidates({r}, query, map, geo, o);
+    EXPECT_FALSE(refused.success);
+    EXPECT_NE(refused.reason.find("keyframe 3 repeats elsewhere: it verifies with keyframe 7"),
+              std::string::npos)
+        << refused.reason;
+    EXPECT_NE(refused.reason.find("200.0 mm and 90.0 degrees"), std::string::npos)
+        << refused.reason;
+    copy_pose = {1.0, 2.0, 0.0};
+    const Localization kept = VerifyCandidates({r}, query, map, geo, o);
+    ASSERT_TRUE(kept.success) << kept.reason;
+    EXPECT_EQ(kept.estimate.inliers, clean + twinned);
+  }
+  EXPECT_EQ(requeried, 4);
+  map.query_of = nullptr;  // a map that cannot query its own images
+  EXPECT_THROW(VerifyCandidates({r}, query, map, geo, o), std::invalid_argument);
+  o.guided_repeat_candidates = 0;
+  EXPECT_THROW(o.Check(), std::invalid_argument);
+  o.guided_repeat_candidates = 5;
+  o.guided_radius = 0.0;  // the check belongs to guided matching
+  EXPECT_THROW(o.Check(), std::invalid_argument);
+  o.guided_repeat_check = false;
+  EXPECT_FALSE(LocalizationOptions{}.guided_repeat_check);
+
   o.guided_radius = -1.0;
   EXPECT_THROW(o.Check(), std::invalid_argument);
   o.guided_radius = 8.0;

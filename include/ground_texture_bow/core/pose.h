@@ -139,6 +139,18 @@ struct LocalizationOptions {
   double guided_radius = 0.0;         // pixels
   double guided_max_distance = 80.0;  // descriptor distance
   int guided_seed_inliers = 4;
+  // The repeat check of guided matching (needs guided_radius > 0 and a map that can query its
+  // own images, MapAccess::query_of and retrieve): a pose guided matching found is kept only
+  // when its keyframe, queried against its own map (itself excluded; plain, then guided
+  // verification of each of its K candidates as above), gives no pose that disagrees with its
+  // own map pose beyond consensus_distance or consensus_angle (its first guided_repeat_candidates
+  // are verified: more than K, since its overlapping neighbours come first). A floor that holds a
+  // copy of itself elsewhere (a repeat, or the same pattern turned) makes such a keyframe verify at
+  // the copy; guided matching, which has no ratio test, would then take a query of the copy's place
+  // for one of the keyframe's; one such keyframe refuses every guided pose of the query.
+  // Costs one retrieval and up to guided_repeat_candidates verifications per guided pose.
+  bool guided_repeat_check = false;
+  int guided_repeat_candidates = 5;
 
   void Check() const;
 };
@@ -165,6 +177,11 @@ struct MapAccess {
   // Optional: why an image cannot give a pose ("no pose", "other image size"); empty when it
   // can. Such candidates are skipped.
   std::function<std::string(uint32_t image)> unusable;
+  // Optional, for the repeat check (LocalizationOptions::guided_repeat_check): a map image as a
+  // query (its keypoints as the map keeps them, its descriptors, encoded), and the map's
+  // retrieval for such a query: its `k` best, best first, without the image `self` itself.
+  std::function<BowVector(uint32_t image)> query_of;
+  std::function<std::vector<QueryResult>(const BowVector& query, uint32_t self, size_t k)> retrieve;
 };
 
 // Matches of two images' descriptors (CV_8U: Hamming; CV_32F: L2): mutual nearest neighbours
