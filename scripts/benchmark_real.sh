@@ -43,7 +43,7 @@ bash "$here/scripts/real_floor_dataset.sh" "$gtbow" "$photos" "$data"
   --preset "$cfg/changing_floors.yaml" --preset "$cfg/ablation/changing/query_only.yaml" \
   --preset "$cfg/ablation/changing/transient_only.yaml" --preset "$cfg/ablation/changing/both_polarities.yaml" \
   --preset "$cfg/ablation/changing/six_inliers.yaml" --preset "$cfg/ablation/changing/guided.yaml" \
-  --out "$out" --timing-queries 20 --no-plots -q
+  --preset "$cfg/ablation/changing/guided_repeat_check.yaml" --out "$out" --timing-queries 20 --no-plots -q
 # Sequence queries (issue 28): each query with the 2 and 4 images before it, through odometry.
 seq=()
 for n in 3 5; do
@@ -87,7 +87,8 @@ for surface in smooth_concrete epoxy; do
     --preset "$cfg/fast.yaml" --preset "$cfg/paper_literal.yaml" --preset "$cfg/authors.yaml" \
     --preset "$cfg/changing_floors.yaml" --preset "$cfg/ablation/changing/query_only.yaml" \
     --preset "$cfg/ablation/changing/transient_only.yaml" --preset "$cfg/ablation/changing/both_polarities.yaml" \
-    --preset "$cfg/ablation/changing/guided.yaml" --out "$out-$surface" --timing-queries 20 --no-plots -q > /dev/null
+    --preset "$cfg/ablation/changing/guided.yaml" --preset "$cfg/ablation/changing/guided_repeat_check.yaml" \
+    --out "$out-$surface" --timing-queries 20 --no-plots -q > /dev/null
   lc+=("$out-$surface/results.json")
   for n in 3 5; do
     "$gtbow" eval --dataset "$data-$surface" --words 5000 --preset "$cfg/high_accuracy.yaml" \
@@ -106,7 +107,8 @@ done
 bash "$here/scripts/real_floor_dataset.sh" "$gtbow" "$photos" "$data-heldout" heldout
 "$gtbow" eval --dataset "$data-heldout" --words 20000 --preset "$cfg/high_accuracy.yaml" \
   --preset "$cfg/changing_floors.yaml" --preset "$cfg/ablation/changing/six_inliers.yaml" \
-  --preset "$cfg/ablation/changing/guided.yaml" --out "$out-heldout" --timing-queries 0 --no-plots -q > /dev/null
+  --preset "$cfg/ablation/changing/guided.yaml" --preset "$cfg/ablation/changing/guided_repeat_check.yaml" \
+  --out "$out-heldout" --timing-queries 0 --no-plots -q > /dev/null
 "$gtbow" eval --dataset "$data-heldout" --words 20000 --preset "$cfg/high_accuracy.yaml" \
   --preset "$cfg/changing_floors.yaml" --sequence 5 --out "$out-heldout-sequence5" \
   --timing-queries 0 --no-plots -q > /dev/null

@@ -178,12 +178,13 @@ REAL_MAINTAINED = {
 REAL_MAINTAINED_EXPECT = {"renderings": 4, "lengths": [1, 5]}
 REAL_CHANGING_PRESETS = ["changing_floors", "ablation/changing/query_only",
                          "ablation/changing/transient_only", "ablation/changing/both_polarities",
-                         "ablation/changing/six_inliers", "ablation/changing/guided"]
+                         "ablation/changing/six_inliers", "ablation/changing/guided",
+                         "ablation/changing/guided_repeat_check"]
 # The held-out photographs (scripts/benchmark_real.sh): the photos of ../shared/real_floors that
 # neither the benchmark's map nor its training uses, plaster1 included (a training photo of the
 # benchmark, here a map: its own training split leaves it out).
 HELDOUT_PRESETS = ["high_accuracy", "changing_floors", "ablation/changing/six_inliers",
-                   "ablation/changing/guided"]
+                   "ablation/changing/guided", "ablation/changing/guided_repeat_check"]
 
 # photo label (gtbow synth --photo's split suffix) -> (surface, textured?)
 REAL_PHOTOS = collections.OrderedDict([
@@ -213,7 +214,8 @@ REAL_EXPECT = {
     "low_contrast_presets": ["high_accuracy", "fast", "paper_literal", "authors",
                              "changing_floors", "ablation/changing/query_only",
                              "ablation/changing/transient_only",
-                             "ablation/changing/both_polarities", "ablation/changing/guided"],
+                             "ablation/changing/both_polarities", "ablation/changing/guided",
+                             "ablation/changing/guided_repeat_check"],
 }
 # The small version in make test (real_floor_small_test): two photos, day 0, 20 queries.
 REAL_SMALL = {

@@ -243,9 +243,11 @@ REAL_PRESETS = ["high_accuracy", "fast", "paper_literal", "paper_literal_fast", 
                 "ablation/features/adaptive_threshold", "ablation/features/grid_refill",
                 "ablation/features/dense_400", "changing_floors", "ablation/changing/query_only",
                 "ablation/changing/transient_only", "ablation/changing/both_polarities",
-                "ablation/changing/six_inliers", "ablation/changing/guided"]
+                "ablation/changing/six_inliers", "ablation/changing/guided",
+                "ablation/changing/guided_repeat_check"]
 CHANGING_LC = ["changing_floors", "ablation/changing/query_only", "ablation/changing/transient_only",
-               "ablation/changing/both_polarities", "ablation/changing/guided"]
+               "ablation/changing/both_polarities", "ablation/changing/guided",
+               "ablation/changing/guided_repeat_check"]
 
 
 def real_results(photos=PHOTOS, presets=REAL_PRESETS, plain_smooth=0.05, ha_smooth=0.95, ha_map=0.85,
@@ -302,7 +304,8 @@ class Real(Base):
         held = dump(os.path.join(self.dir, "heldout", "results.json"),
                     real_results(photos=PHOTOS[:2], presets=["high_accuracy", "changing_floors",
                                                               "ablation/changing/six_inliers",
-                                                              "ablation/changing/guided"]))
+                                                              "ablation/changing/guided",
+                                                              "ablation/changing/guided_repeat_check"]))
         self.expect(OK, "write_real_results.py", "--heldout", held, ins[0], self.docs, *ins[1:])
         self.assertIn("Held-out photographs", self.section("real"))
 
