@@ -190,6 +190,9 @@ void LocalizationOptions::Check() const {
   if (guided_repeat_check && !(guided_radius > 0.0)) {
     throw std::invalid_argument("localization: guided_repeat_check needs guided_radius > 0");
   }
+  if (!(guided_repeat_ratio >= 0.0) || !std::isfinite(guided_repeat_ratio)) {
+    throw std::invalid_argument("localization: guided_repeat_ratio must be >= 0");
+  }
   if (guided_repeat_candidates < 1) {
     throw std::invalid_argument("localization: guided_repeat_candidates must be >= 1");
   }
@@ -610,9 +613,11 @@ PoseEstimate VerifyGuided(const QueryResult& r, const BowVector& query, const Ma
 }
 
 // The repeat check of a pose guided matching found with map image `image`
-// (LocalizationOptions::guided_repeat_check): empty when the image, queried against its own
-// map, verifies nowhere else; else where it verifies.
-std::string RepeatsElsewhere(uint32_t image, const MapAccess& map, const ImageGeometry& geometry,
+// (LocalizationOptions::guided_repeat_check) for `query`'s guided estimate `est` with map image
+// `image`: empty when the image, queried against its own map, verifies nowhere else (or, with
+// guided_repeat_ratio, where the query itself holds too few inliers); else why not.
+std::string RepeatsElsewhere(const BowVector& query, const PoseEstimate& est, uint32_t image,
+                             const MapAccess& map, const ImageGeometry& geometry,
                              const LocalizationOptions& o) {
   if (!map.query_of || !map.retrieve) {
     throw std::invalid_argument(
@@ -635,11 +640,29 @@ std::string RepeatsElsewhere(uint32_t image, const MapAccess& map, const ImageGe
     const double apart = std::hypot(p.x - own.x, p.y - own.y);
     const double turned = std::abs(WrapAngle(p.theta - own.theta));
     if (apart <= o.consensus_distance && turned <= o.consensus_angle) continue;
-    char why[200];
+    char why[300];
     std::snprintf(why, sizeof(why),
                   "keyframe %u repeats elsewhere: it verifies with keyframe %u (%d inliers) "
                   "%.1f mm and %.1f degrees from its own pose",
                   image, r.image, e.inliers, 1000.0 * apart, turned * 180.0 / M_PI);
+    if (o.guided_repeat_ratio > 0.0) {
+      // The query matched at the copy through the same hypothesis (image -> copy after
+      // query -> image): a query whose place is the image's holds fewer inliers there.
+      const Rigid2D& a = est.database_from_query;  // image from query
+      const Rigid2D& b = e.database_from_query;    // copy from image
+      const double c = std::cos(b.theta), s = std::sin(b.theta);
+      const Rigid2D copy_from_query{WrapAngle(a.theta + b.theta),
+                                    {c * a.t.x - s * a.t.y + b.t.x, s * a.t.x + c * a.t.y + b.t.y}};
+      const std::vector<PointMatch> there = GuidedMatches(
+          query.source, query.source_descriptors, map.keypoints(r.image), map.descriptors(r.image),
+          copy_from_query, geometry, o.guided_radius, o.guided_max_distance);
+      const PoseEstimate at_copy = EstimatePose(there, map.pose(r.image), geometry, o.pose);
+      if (at_copy.inliers < o.guided_repeat_ratio * est.inliers) continue;
+      const size_t len = std::strlen(why);
+      std::snprintf(why + len, sizeof(why) - len,
+                    "; the query holds %d inliers at the copy against %d (guided_repeat_ratio %g)",
+                    at_copy.inliers, est.inliers, o.guided_repeat_ratio);
+    }
     return why;
   }
   return std::string();
@@ -751,7 +774,7 @@ std::vector<PoseEstimate> VerifyEach(const std::vector<QueryResult>& results,
       poses[k] = out[k].floor_from_query;
       guided[k] = 1;
       if (o.guided_repeat_check && repeat.empty()) {
-        repeat = RepeatsElsewhere(results[k].image, map, geometry, o);
+        repeat = RepeatsElsewhere(query, out[k], results[k].image, map, geometry, o);
       }
     }
     // One guided keyframe that repeats elsewhere makes every guided pose of the query doubtful:
@@ -835,9 +858,10 @@ Localization VerifyCandidates(const std::vector<QueryResult>& results, const Bow
       PoseEstimate est =
           VerifyGuided(results[rank], query, map, geometry, o, seeds[rank], &loc.inlier_pixels);
       if (!est.success) continue;
-      const std::string repeat = o.guided_repeat_check
-                                     ? RepeatsElsewhere(results[rank].image, map, geometry, o)
-                                     : std::string();
+      const std::string repeat =
+          o.guided_repeat_check
+              ? RepeatsElsewhere(query, est, results[rank].image, map, geometry, o)
+              : std::string();
       if (repeat.empty()) return answer(rank, std::move(est));
       loc.inlier_pixels.clear();  // no guided pose for this query (as VerifyEach)
       reasons += "; guided: " + repeat;

@@ -443,6 +443,30 @@ TEST(PoseChecks, GuidedMatchingRecoversMatchesTheRatioTestDrops) {
     EXPECT_EQ(kept.estimate.inliers, clean + twinned);
   }
   EXPECT_EQ(requeried, 4);
+  // guided_repeat_ratio: the query matched at the copy too. An exact copy holds as many of the
+  // query's inliers: refused. A copy of a part (the first 12 keypoints): the keyframe's place.
+  o.guided_repeat_ratio = 0.5;
+  copy_pose = {1.2, 2.0, M_PI / 2};
+  const Localization whole = VerifyCandidates({r}, query, map, geo, o);
+  EXPECT_FALSE(whole.success);
+  EXPECT_NE(whole.reason.find("the query holds 35 inliers at the copy against 35"),
+            std::string::npos)
+      << whole.reason;
+  const std::vector<Keypoint> part(dk.begin(), dk.begin() + 12);
+  const cv::Mat part_d = dd.rowRange(0, 12).clone();
+  map.keypoints = [&](uint32_t i) { return i == 7 ? part : dk; };
+  map.descriptors = [&](uint32_t i) { return i == 7 ? part_d : dd; };
+  const Localization partial = VerifyCandidates({r}, query, map, geo, o);
+  ASSERT_TRUE(partial.success) << partial.reason;
+  EXPECT_EQ(partial.estimate.inliers, clean + twinned);
+  o.guided_repeat_ratio = 0.0;  // without the contest, the part copy refuses it too
+  const Localization part_refused = VerifyCandidates({r}, query, map, geo, o);
+  EXPECT_FALSE(part_refused.success);
+  EXPECT_NE(part_refused.reason.find("repeats elsewhere"), std::string::npos)
+      << part_refused.reason;
+  o.guided_repeat_ratio = -1.0;
+  EXPECT_THROW(o.Check(), std::invalid_argument);
+  o.guided_repeat_ratio = 0.0;
   map.query_of = nullptr;  // a map that cannot query its own images
   EXPECT_THROW(VerifyCandidates({r}, query, map, geo, o), std::invalid_argument);
   o.guided_repeat_candidates = 0;

@@ -151,6 +151,11 @@ struct LocalizationOptions {
   // Costs one retrieval and up to guided_repeat_candidates verifications per guided pose.
   bool guided_repeat_check = false;
   int guided_repeat_candidates = 5;
+  // 0: a keyframe that repeats elsewhere refuses as said. Above 0: the query is matched at the
+  // copy too (guided, through the keyframe's hypothesis composed with the copy's), and the
+  // keyframe's pose stands when the query holds fewer than this fraction of its inliers there
+  // (its place is the keyframe's, the copy covering only part of it).
+  double guided_repeat_ratio = 0.0;
 
   void Check() const;
 };
