@@ -284,6 +284,13 @@ void Localizer::PrefetchPayloads(const std::vector<QueryResult>& results, size_t
   }
 }
 
+ImageFeatures Localizer::StoredFeatures(const detail::KeyframeView& v) const {
+  ImageFeatures f;
+  f.keypoints = detail::PayloadKeypoints(v);
+  f.descriptors = detail::PayloadDescriptors(v, descriptor_cols_, descriptor_type_).clone();
+  return f;
+}
+
 MapAccess Localizer::RelativeAccess() const {
   MapAccess map;
   map.keypoints = [this](uint32_t id) { return detail::PayloadKeypoints(View(id)); };
@@ -354,8 +361,7 @@ std::vector<Candidate> Localizer::QueryKeyframe(uint32_t id, size_t k, bool veri
     const std::string damaged = Damaged(id);
     if (!damaged.empty()) throw std::runtime_error(damaged);
     const detail::KeyframeView v = View(id);
-    f.keypoints = detail::PayloadKeypoints(v);
-    f.descriptors = detail::PayloadDescriptors(v, descriptor_cols_, descriptor_type_).clone();
+    f = StoredFeatures(v);
     width = static_cast<int>(v.record->width);
     height = static_cast<int>(v.record->height);
   }
@@ -391,11 +397,7 @@ Localization Localizer::Localize(const ProcessedImage& image) const {
     // for the repeat check of guided matching; mutex_ is held (shared) throughout.
     map.query_of = [this](uint32_t id) {
       if (!options_.keep_descriptors) return BowVector();
-      const detail::KeyframeView v = View(id);
-      ImageFeatures f;
-      f.keypoints = detail::PayloadKeypoints(v);
-      f.descriptors = detail::PayloadDescriptors(v, descriptor_cols_, descriptor_type_).clone();
-      return encoder_->Encode(f);
+      return encoder_->Encode(StoredFeatures(View(id)));
     };
     map.retrieve = [this](const BowVector& q, uint32_t self, size_t k) {
       auto r = database_->Query(q, k + 1, true);

@@ -612,10 +612,9 @@ PoseEstimate VerifyGuided(const QueryResult& r, const BowVector& query, const Ma
   return est;
 }
 
-// The repeat check of a pose guided matching found with map image `image`
-// (LocalizationOptions::guided_repeat_check) for `query`'s guided estimate `est` with map image
-// `image`: empty when the image, queried against its own map, verifies nowhere else (or, with
-// guided_repeat_ratio, where the query itself holds too few inliers); else why not.
+// The repeat check (LocalizationOptions::guided_repeat_check) of `query`'s guided estimate `est`
+// with map image `image`: empty when the image, queried against its own map, verifies nowhere else
+// (or, with guided_repeat_ratio, where the query itself holds too few inliers); else why not.
 std::string RepeatsElsewhere(const BowVector& query, const PoseEstimate& est, uint32_t image,
                              const MapAccess& map, const ImageGeometry& geometry,
                              const LocalizationOptions& o) {

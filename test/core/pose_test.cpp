@@ -427,14 +427,18 @@ TEST(PoseChecks, GuidedMatchingRecoversMatchesTheRatioTestDrops) {
   };
   o.guided_repeat_check = true;
   o.guided_repeat_candidates = 5;
+  // Localizes once: no pose, and the reason says `why`.
+  auto refused_for = [&](const std::string& why) {
+    const Localization l = VerifyCandidates({r}, query, map, geo, o);
+    EXPECT_FALSE(l.success);
+    EXPECT_NE(l.reason.find(why), std::string::npos) << l.reason;
+    return l;
+  };
   for (const double conflict : {0.0, 0.5}) {
     o.max_conflict_ratio = conflict;
     copy_pose = {1.2, 2.0, M_PI / 2};
-    const Localization refused = VerifyCandidates({r}, query, map, geo, o);
-    EXPECT_FALSE(refused.success);
-    EXPECT_NE(refused.reason.find("keyframe 3 repeats elsewhere: it verifies with keyframe 7"),
-              std::string::npos)
-        << refused.reason;
+    const Localization refused =
+        refused_for("keyframe 3 repeats elsewhere: it verifies with keyframe 7");
     EXPECT_NE(refused.reason.find("200.0 mm and 90.0 degrees"), std::string::npos)
         << refused.reason;
     copy_pose = {1.0, 2.0, 0.0};
@@ -447,11 +451,7 @@ TEST(PoseChecks, GuidedMatchingRecoversMatchesTheRatioTestDrops) {
   // query's inliers: refused. A copy of a part (the first 12 keypoints): the keyframe's place.
   o.guided_repeat_ratio = 0.5;
   copy_pose = {1.2, 2.0, M_PI / 2};
-  const Localization whole = VerifyCandidates({r}, query, map, geo, o);
-  EXPECT_FALSE(whole.success);
-  EXPECT_NE(whole.reason.find("the query holds 35 inliers at the copy against 35"),
-            std::string::npos)
-      << whole.reason;
+  refused_for("the query holds 35 inliers at the copy against 35");
   const std::vector<Keypoint> part(dk.begin(), dk.begin() + 12);
   const cv::Mat part_d = dd.rowRange(0, 12).clone();
   map.keypoints = [&](uint32_t i) { return i == 7 ? part : dk; };
@@ -460,10 +460,7 @@ TEST(PoseChecks, GuidedMatchingRecoversMatchesTheRatioTestDrops) {
   ASSERT_TRUE(partial.success) << partial.reason;
   EXPECT_EQ(partial.estimate.inliers, clean + twinned);
   o.guided_repeat_ratio = 0.0;  // without the contest, the part copy refuses it too
-  const Localization part_refused = VerifyCandidates({r}, query, map, geo, o);
-  EXPECT_FALSE(part_refused.success);
-  EXPECT_NE(part_refused.reason.find("repeats elsewhere"), std::string::npos)
-      << part_refused.reason;
+  refused_for("repeats elsewhere");
   o.guided_repeat_ratio = -1.0;
   EXPECT_THROW(o.Check(), std::invalid_argument);
   o.guided_repeat_ratio = 0.0;

@@ -279,6 +279,9 @@ class Localizer {
   // The keyframes' keypoints and descriptors, each pose at the origin (relative poses); under
   // mutex_.
   MapAccess RelativeAccess() const;
+  // A keyframe's stored keypoints and descriptors (copied), to encode it as a query
+  // (QueryKeyframe, the repeat check); under mutex_.
+  ImageFeatures StoredFeatures(const detail::KeyframeView& v) const;
   std::vector<Candidate> QueryLocked(const BowVector& bow, int width, int height, size_t k,
                                      bool verify, uint32_t exclude_from, uint32_t exclude_to) const;
   // A keyframe's view, or why it cannot be verified (a payload that fails its checksum); under

@@ -142,13 +142,13 @@ struct LocalizationOptions {
   // The repeat check of guided matching (needs guided_radius > 0 and a map that can query its
   // own images, MapAccess::query_of and retrieve): a pose guided matching found is kept only
   // when its keyframe, queried against its own map (itself excluded; plain, then guided
-  // verification of each of its K candidates as above), gives no pose that disagrees with its
-  // own map pose beyond consensus_distance or consensus_angle (its first guided_repeat_candidates
-  // are verified: more than K, since its overlapping neighbours come first). A floor that holds a
-  // copy of itself elsewhere (a repeat, or the same pattern turned) makes such a keyframe verify at
-  // the copy; guided matching, which has no ratio test, would then take a query of the copy's place
-  // for one of the keyframe's; one such keyframe refuses every guided pose of the query.
-  // Costs one retrieval and up to guided_repeat_candidates verifications per guided pose.
+  // verification of its first guided_repeat_candidates candidates), gives no pose that
+  // disagrees with its own map pose beyond consensus_distance or consensus_angle. A floor that
+  // holds a copy of itself elsewhere (a repeat, or the same pattern turned) makes such a keyframe
+  // verify at the copy; guided matching, which has no ratio test, would then take a query of the
+  // copy's place for one of the keyframe's; one such keyframe refuses every guided pose of the
+  // query. Costs one retrieval, up to guided_repeat_candidates verifications (and, with
+  // guided_repeat_ratio, one guided match) per guided pose.
   bool guided_repeat_check = false;
   int guided_repeat_candidates = 5;
   // 0: a keyframe that repeats elsewhere refuses as said. Above 0: the query is matched at the
