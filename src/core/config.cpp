@@ -178,6 +178,7 @@ const std::vector<Field>& Fields() {
       Verify("guided_repeat_check", &LocalizationOptions::guided_repeat_check),
       Verify("guided_repeat_candidates", &LocalizationOptions::guided_repeat_candidates),
       Verify("guided_repeat_ratio", &LocalizationOptions::guided_repeat_ratio),
+      Verify("guided_combined", &LocalizationOptions::guided_combined),
       VerifyPose("min_inliers", &PoseOptions::min_inliers),
       VerifyPose("inlier_threshold", &PoseOptions::inlier_threshold),
       VerifyPose("max_iterations", &PoseOptions::max_iterations),

@@ -134,7 +134,9 @@ ProcessedImage Localizer::Combine(const std::vector<const ProcessedImage*>& imag
     views.push_back(&im->features);
   }
   const ImageGeometry g = GeometryOf(images[0]->width, images[0]->height);
-  return Encode(CombineViews(views, poses, g), g.width, g.height);
+  ProcessedImage out = Encode(CombineViews(views, poses, g), g.width, g.height);
+  out.combined = true;
+  return out;
 }
 
 uint32_t Localizer::Add(const ProcessedImage& image, int64_t stamp_ns,
@@ -392,7 +394,10 @@ Localization Localizer::Localize(const ProcessedImage& image) const {
       return "other image size";
     return Damaged(id);
   };
-  if (verification_.guided_repeat_check) {
+  // A sequence query's combined view: without guided matching unless guided_combined.
+  const LocalizationOptions lo =
+      image.combined ? CombinedViewOptions(verification_) : verification_;
+  if (lo.guided_repeat_check) {
     // A keyframe as a query (its stored keypoints and descriptors, encoded; QueryKeyframe's),
     // for the repeat check of guided matching; mutex_ is held (shared) throughout.
     map.query_of = [this](uint32_t id) {
@@ -408,11 +413,9 @@ Localization Localizer::Localize(const ProcessedImage& image) const {
       return r;
     };
   }
-  const auto results =
-      database_->Query(image.bow, static_cast<size_t>(verification_.candidates), true);
+  const auto results = database_->Query(image.bow, static_cast<size_t>(lo.candidates), true);
   PrefetchPayloads(results, results.size());
-  return VerifyCandidates(results, image.bow, map, GeometryOf(image.width, image.height),
-                          verification_);
+  return VerifyCandidates(results, image.bow, map, GeometryOf(image.width, image.height), lo);
 }
 
 void Localizer::Reset() {

@@ -669,6 +669,15 @@ std::string RepeatsElsewhere(const BowVector& query, const PoseEstimate& est, ui
 
 }  // namespace
 
+LocalizationOptions CombinedViewOptions(const LocalizationOptions& options) {
+  LocalizationOptions o = options;
+  if (!o.guided_combined) {
+    o.guided_radius = 0.0;
+    o.guided_repeat_check = false;
+  }
+  return o;
+}
+
 PoseEstimate VerifyCandidate(const QueryResult& r, const BowVector& query, const MapAccess& map,
                              const ImageGeometry& geometry, const LocalizationOptions& options,
                              std::vector<Vec2>* inlier_pixels) {

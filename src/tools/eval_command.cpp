@@ -348,6 +348,8 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
   for (size_t i = 0; i < db_src.size(); ++i) db_names.push_back(db_src.name(i));
   std::vector<char> db_live(db_pose.size(), 1);  // 0: retired by maintenance
   const LocalizationOptions& lo = c.verification;
+  // A sequence query's combined view is verified as the node's Localizer verifies one.
+  const LocalizationOptions lo_view = a.sequence > 1 ? CombinedViewOptions(lo) : lo;
   if (!a.maintain.empty()) {
     pr.maintenance = Maintain(a, c, enc, ds, geo, map, &db, &db_feats, &stored, &db_pose, &map_pose,
                               &db_names, &db_live);
@@ -397,7 +399,7 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
         }
         p.loc = SequenceFix(
             sequence, [&] { return VerifyCandidates(single_candidates, own, map, geo, lo); },
-            [&] { return VerifyCandidates(candidates, q_vecs[qi], map, geo, lo); }, nullptr);
+            [&] { return VerifyCandidates(candidates, q_vecs[qi], map, geo, lo_view); }, nullptr);
       } else {
         p.loc = VerifyCandidates(candidates, q_vecs[qi], map, geo, lo);
       }
@@ -421,7 +423,7 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
                       f.x, f.y, f.theta, p.truth.x, p.truth.y, p.truth.theta);
         p.rows += b;
       };
-      const std::vector<PoseEstimate> each = VerifyEach(candidates, q_vecs[qi], map, geo, lo);
+      const std::vector<PoseEstimate> each = VerifyEach(candidates, q_vecs[qi], map, geo, lo_view);
       for (size_t k = 0; k < each.size(); ++k) {
         if (each[k].success) record(k, each[k], candidates);
       }
@@ -537,24 +539,27 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
     const auto t1 = Clock::now();
     Clock::duration transform{}, query{}, pose{};
     BowVector v;
-    auto localize = [&](auto&& encode) {
+    auto localize = [&](auto&& encode, const LocalizationOptions& with) {
       const auto a0 = Clock::now();
       v = encode();
       const auto a1 = Clock::now();
-      const auto results = db.Query(v, static_cast<size_t>(lo.candidates), true);
+      const auto results = db.Query(v, static_cast<size_t>(with.candidates), true);
       const auto a2 = Clock::now();
-      Localization loc = VerifyCandidates(results, v, map, geo, lo);
+      Localization loc = VerifyCandidates(results, v, map, geo, with);
       const auto a3 = Clock::now();
       transform += a1 - a0;
       query += a2 - a1;
       pose += a3 - a2;
       return loc;
     };
-    auto alone = [&] { return localize([&] { return enc.Encode(f); }); };
+    auto alone = [&] { return localize([&] { return enc.Encode(f); }, lo); };
     if (a.sequence > 1) {
       (void)SequenceFix(
           sequence, alone,
-          [&] { return localize([&] { return enc.Encode(q_trails[split].Combine(f, qi, geo)); }); },
+          [&] {
+            return localize([&] { return enc.Encode(q_trails[split].Combine(f, qi, geo)); },
+                            lo_view);
+          },
           nullptr);
     } else {
       (void)alone();

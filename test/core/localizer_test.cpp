@@ -220,6 +220,16 @@ TEST(Localizer, TheRepeatCheckRefusesGuidedPosesFromAKeyframeWithACopy) {
   EXPECT_LT(1000 * std::hypot(kept.estimate.floor_from_query.x - t.x,
                               kept.estimate.floor_from_query.y - t.y),
             4.8);
+  // The same features as a sequence query's combined view are verified without guided matching
+  // (CombinedViewOptions) unless guided_combined.
+  ProcessedImage view = img;
+  view.combined = true;
+  const Localization unguided = map(o, false)->Localize(view);
+  EXPECT_FALSE(unguided.success);
+  EXPECT_EQ(unguided.reason.find("guided"), std::string::npos) << unguided.reason;
+  o.retrieval.verification.guided_combined = true;
+  EXPECT_TRUE(map(o, false)->Localize(view).success);
+  o.retrieval.verification.guided_combined = false;
   const Localization refused = map(o, true)->Localize(img);
   EXPECT_FALSE(refused.success);
   EXPECT_NE(refused.reason.find("repeats elsewhere"), std::string::npos) << refused.reason;
@@ -1051,6 +1061,8 @@ TEST(Localizer, SequenceQueriesLocalizeAHiddenImageWithTheImagesBeforeIt) {
     const ProcessedImage seq = loc->Combine({&newest, &t1, &t2}, {odom_newest, odom_t1, odom_t2});
     EXPECT_GT(seq.features.size(), newest.features.size() + t1.features.size() / 2);
     EXPECT_EQ(seq.width, newest.width);
+    EXPECT_TRUE(seq.combined);  // verified with CombinedViewOptions
+    EXPECT_FALSE(newest.combined);
     const Localization single = loc->Localize(newest);
     const Localization fix = loc->Localize(seq);
     ASSERT_TRUE(fix.success) << "place " << q << ": " << fix.reason;

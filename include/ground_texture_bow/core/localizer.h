@@ -121,6 +121,7 @@ struct ProcessedImage {
   BowVector bow;
   int width = 0;
   int height = 0;
+  bool combined = false;  // a sequence query's combined view (Combine; CombinedViewOptions)
 };
 
 // A retrieved keyframe. With verification, `relative` holds match_from_query: the query

@@ -156,9 +156,18 @@ struct LocalizationOptions {
   // keyframe's pose stands when the query holds fewer than this fraction of its inliers there
   // (its place is the keyframe's, the copy covering only part of it).
   double guided_repeat_ratio = 0.0;
+  // Guided matching (and its repeat check) for a sequence query's combined view too (sequence.h;
+  // CombinedViewOptions). Off, a combined view is verified without it: on the held-out photos
+  // guided matching of combined views published two copies of a sand floor turned 180 degrees,
+  // where the check's copy covered another part of the larger view.
+  bool guided_combined = false;
 
   void Check() const;
 };
+
+// The options that verify a sequence query's combined view (sequence.h): `options` without guided
+// matching unless options.guided_combined.
+LocalizationOptions CombinedViewOptions(const LocalizationOptions& options);
 
 // The result of global localization, for the evaluation (gtbow eval) and the node
 // (Localizer::Localize) alike: the query's pose is estimate.floor_from_query (in the map, for
