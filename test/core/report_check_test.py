@@ -313,7 +313,7 @@ class Real(Base):
         self.expect(OK, "write_real_results.py", "--heldout", held, ins[0], self.docs, *ins[1:])
         self.assertIn("Held-out photographs", self.section("real"))
 
-    def sequence_inputs(self, cf5_oldest=0.95, wrong=0, renderings=(2, 3, 4), smooth5=0.8):
+    def sequence_inputs(self, cf5_oldest=0.98, wrong=0, renderings=(2, 3, 4), smooth5=0.8):
         """The --sequence results of scripts/benchmark_real.sh: rendering 1 with 3 and 5 images,
         renderings 2-4 with 1 and 5, the synthetic surfaces with 3 and 5, the held-out photos."""
         def res(name, n, presets, cf_oldest, surface="photo", photos=PHOTOS, w=0):
@@ -421,6 +421,11 @@ class Real(Base):
         ins = self.inputs()
         self.expect(MISSED, "write_real_results.py", "--check", *self.sequence_inputs(wrong=1), *ins,
                     why="wrong verified poses the combined views add")
+
+    def test_sequence_mean_missed(self):
+        ins = self.inputs()
+        self.expect(MISSED, "write_real_results.py", "--check", *self.sequence_inputs(cf5_oldest=0.95), *ins,
+                    why="5-image sequences on the frozen map, day-180 localization, mean of the surfaces")
 
     def test_sequence_smooth_concrete_missed(self):
         ins = self.inputs()
