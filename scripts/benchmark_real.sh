@@ -40,7 +40,8 @@ bash "$here/scripts/real_floor_dataset.sh" "$gtbow" "$photos" "$data"
   --preset "$cfg/ablation/features/clahe_only.yaml" --preset "$cfg/ablation/features/grid_only.yaml" \
   --preset "$cfg/ablation/features/normalize_grid.yaml" --preset "$cfg/ablation/features/adaptive_threshold.yaml" \
   --preset "$cfg/ablation/features/grid_refill.yaml" --preset "$cfg/ablation/features/dense_400.yaml" \
-  --preset "$cfg/changing_floors.yaml" --preset "$cfg/ablation/changing/no_guided.yaml" \
+  --preset "$cfg/changing_floors.yaml" --preset "$cfg/ablation/changing/no_min_spread.yaml" \
+  --preset "$cfg/ablation/changing/no_guided.yaml" \
   --preset "$cfg/ablation/changing/query_only.yaml" \
   --preset "$cfg/ablation/changing/transient_only.yaml" --preset "$cfg/ablation/changing/both_polarities.yaml" \
   --preset "$cfg/ablation/changing/six_inliers.yaml" --preset "$cfg/ablation/changing/guided.yaml" \
@@ -86,7 +87,8 @@ for surface in smooth_concrete epoxy; do
     --queries 30 --days 0,180 --query-trail 4 --session-days 30,90 -q > /dev/null
   "$gtbow" eval --dataset "$data-$surface" --words 5000 --preset "$cfg/high_accuracy.yaml" \
     --preset "$cfg/fast.yaml" --preset "$cfg/paper_literal.yaml" --preset "$cfg/authors.yaml" \
-    --preset "$cfg/changing_floors.yaml" --preset "$cfg/ablation/changing/no_guided.yaml" \
+    --preset "$cfg/changing_floors.yaml" --preset "$cfg/ablation/changing/no_min_spread.yaml" \
+  --preset "$cfg/ablation/changing/no_guided.yaml" \
     --preset "$cfg/ablation/changing/query_only.yaml" \
     --preset "$cfg/ablation/changing/transient_only.yaml" --preset "$cfg/ablation/changing/both_polarities.yaml" \
     --preset "$cfg/ablation/changing/guided.yaml" --preset "$cfg/ablation/changing/guided_repeat_check.yaml" \
@@ -108,7 +110,8 @@ done
 # The held-out photographs (issue 28): never used to design the presets.
 bash "$here/scripts/real_floor_dataset.sh" "$gtbow" "$photos" "$data-heldout" heldout
 "$gtbow" eval --dataset "$data-heldout" --words 20000 --preset "$cfg/high_accuracy.yaml" \
-  --preset "$cfg/changing_floors.yaml" --preset "$cfg/ablation/changing/no_guided.yaml" \
+  --preset "$cfg/changing_floors.yaml" --preset "$cfg/ablation/changing/no_min_spread.yaml" \
+  --preset "$cfg/ablation/changing/no_guided.yaml" \
   --preset "$cfg/ablation/changing/six_inliers.yaml" \
   --preset "$cfg/ablation/changing/guided.yaml" --preset "$cfg/ablation/changing/guided_repeat_check.yaml" \
   --out "$out-heldout" --timing-queries 0 --no-plots -q > /dev/null

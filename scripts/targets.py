@@ -173,7 +173,8 @@ REAL_MAINTAINED = {
                           "truth, every run", "<=", 0, "n"),
 }
 REAL_MAINTAINED_EXPECT = {"renderings": 4, "lengths": [1, 5]}
-REAL_CHANGING_PRESETS = ["changing_floors", "ablation/changing/no_guided",
+REAL_CHANGING_PRESETS = ["changing_floors", "ablation/changing/no_min_spread",
+                         "ablation/changing/no_guided",
                          "ablation/changing/query_only",
                          "ablation/changing/transient_only", "ablation/changing/both_polarities",
                          "ablation/changing/six_inliers", "ablation/changing/guided",
@@ -181,7 +182,8 @@ REAL_CHANGING_PRESETS = ["changing_floors", "ablation/changing/no_guided",
 # The held-out photographs (scripts/benchmark_real.sh): the photos of ../shared/real_floors that
 # neither the benchmark's map nor its training uses, plaster1 included (a training photo of the
 # benchmark, here a map: its own training split leaves it out).
-HELDOUT_PRESETS = ["high_accuracy", "changing_floors", "ablation/changing/no_guided",
+HELDOUT_PRESETS = ["high_accuracy", "changing_floors", "ablation/changing/no_min_spread",
+                   "ablation/changing/no_guided",
                    "ablation/changing/six_inliers",
                    "ablation/changing/guided", "ablation/changing/guided_repeat_check"]
 
@@ -211,8 +213,8 @@ REAL_EXPECT = {
                REAL_CHANGING_PRESETS,
     "low_contrast": ["smooth_concrete", "epoxy"],
     "low_contrast_presets": ["high_accuracy", "fast", "paper_literal", "authors",
-                             "changing_floors", "ablation/changing/no_guided",
-                             "ablation/changing/query_only", "ablation/changing/transient_only",
+                             "changing_floors", "ablation/changing/no_min_spread",
+                             "ablation/changing/no_guided", "ablation/changing/query_only", "ablation/changing/transient_only",
                              "ablation/changing/both_polarities", "ablation/changing/guided",
                              "ablation/changing/guided_repeat_check"],
 }

@@ -179,10 +179,12 @@ def changing(chk, by, photos, days, lc_by):
              "keypoints for an image that is only queried (keyframes keep 250), 8 inliers per pose, and "
              "guided matching when no candidate verified, a guided pose kept only from a keyframe that "
              "verifies nowhere else in its own map (40 of its candidates) or where the query holds fewer "
-             "than half its inliers at the copy. `no_guided` is `changing_floors` without guided matching, "
-             "and `both_polarities` and `six_inliers` change one thing of it; `query_only` and "
-             "`transient_only` are `high_accuracy` with one addition; `guided` is `changing_floors` "
-             "without the repeat check, `guided_repeat_check` the check with 5 candidates. "
+             "than half its inliers at the copy, and a pose's inliers spread over at least 12.5 px. "
+             "`no_min_spread` is `changing_floors` without that spread, `no_guided` without guided "
+             "matching either (the preset until December 2026), and `both_polarities` and "
+             "`six_inliers` change one thing of `no_guided`; `query_only` and `transient_only` are "
+             "`high_accuracy` with one addition; `guided` is `no_guided` with guided matching, "
+             "`guided_repeat_check` `no_min_spread` with 5 candidates. "
              "Single images, the map frozen on day 0.", ""]
     lines += table(rows) + [""]
     shown = ["high_accuracy", "changing_floors"] + [n for n in T.REAL_CHANGING_PRESETS if n != "changing_floors"]
