@@ -111,6 +111,8 @@ const std::vector<Field>& Fields() {
       Value("features", "orb_fast_score", &R::features, &F::orb_fast_score),
       Value("features", "orb_patch_size", &R::features, &F::orb_patch_size),
       Value("features", "orb_fast_threshold", &R::features, &F::orb_fast_threshold),
+      // Shapes no map: the same keypoints either way.
+      Value("features", "orb_threshold_ladder", &R::features, &F::orb_threshold_ladder, false),
       Enum("features", "contrast", &R::features, &F::contrast, &ParseContrast, &ContrastName),
       Value("features", "contrast_target", &R::features, &F::contrast_target),
       Value("features", "contrast_max_gain", &R::features, &F::contrast_max_gain),

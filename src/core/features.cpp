@@ -10,6 +10,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "ground_texture_bow/core/enum_names.h"
+#include "orb_detect.h"
 
 namespace gtbow {
 
@@ -118,10 +119,14 @@ FeatureExtractor::FeatureExtractor(const FeatureOptions& options) : options_(opt
               : options_.num_features;
       int t = options_.orb_fast_threshold;
       detectors_.push_back(orb(candidates, t));
+      detector_thresholds_.push_back(t);
       while (options_.orb_min_fast_threshold > 0 && t > options_.orb_min_fast_threshold) {
         t = std::max(options_.orb_min_fast_threshold, t / 2);
         detectors_.push_back(orb(candidates, t));
+        detector_thresholds_.push_back(t);
       }
+      detector_candidates_ = candidates;
+      ladder_ = options_.orb_threshold_ladder && options_.orb_first_level == 0;
     }
   } else {
     detector_ = cv::SIFT::create(options_.num_features, options_.sift_octave_layers,
@@ -153,9 +158,22 @@ ImageFeatures FeatureExtractor::Extract(const cv::Mat& gray) const {
     // Detection at falling thresholds until the image yields num_features candidates; the
     // descriptors of the chosen ones only, below (describing every candidate, twice as many,
     // cost about half as much again as the detection).
-    for (const auto& d : detectors_) {
+    for (size_t i = 0; i < detectors_.size(); ++i) {
       kps.clear();
-      d->detect(image, kps);
+      if (ladder_) {
+        OrbDetectOptions o;
+        o.num_features = detector_candidates_;
+        o.scale_factor = options_.orb_scale_factor;
+        o.num_levels = options_.orb_num_levels;
+        o.edge_threshold = options_.orb_edge_threshold;
+        o.patch_size = options_.orb_patch_size;
+        o.fast_score = options_.orb_fast_score;
+        o.fast_threshold = detector_thresholds_[i];
+        o.rungs = DefaultOrbRungs(o.fast_threshold);
+        kps = DetectOrbKeypoints(image, o);
+      } else {
+        detectors_[i]->detect(image, kps);
+      }
       if (kps.size() >= static_cast<size_t>(options_.num_features)) break;
     }
     if (options_.grid_cols > 0 && options_.grid_refill) {
@@ -193,8 +211,16 @@ ImageFeatures FeatureExtractor::Extract(const cv::Mat& gray) const {
     const size_t want = static_cast<size_t>(options_.num_features);
     std::vector<size_t> order(kps.size());
     std::iota(order.begin(), order.end(), 0);
-    std::stable_sort(order.begin(), order.end(),
-                     [&](size_t a, size_t b) { return kps[a].response > kps[b].response; });
+    // Strongest first; ties by level and position, so that the order does not depend on the
+    // order the detector listed them in (cv::ORB and the threshold ladder list a level's
+    // keypoints in different orders).
+    std::sort(order.begin(), order.end(), [&](size_t a, size_t b) {
+      const cv::KeyPoint &p = kps[a], &q = kps[b];
+      if (p.response != q.response) return p.response > q.response;
+      if (p.octave != q.octave) return p.octave < q.octave;
+      if (p.pt.y != q.pt.y) return p.pt.y < q.pt.y;
+      return p.pt.x < q.pt.x;
+    });
     std::vector<size_t> chosen;
     if (options_.grid_cols > 0 && kps.size() > want) {
       // Best-first, at most a cell's share per cell, then the rest best-first.

@@ -1,13 +1,17 @@
 #include "ground_texture_bow/core/features.h"
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <string>
+#include <vector>
 
 #include <gtest/gtest.h>
 #include <opencv2/features2d.hpp>
 #include <opencv2/imgproc.hpp>
 
 #include "ground_texture_bow/eval/synth/camera.h"
+#include "orb_detect.h"
 
 namespace gtbow {
 namespace {
@@ -426,6 +430,86 @@ TEST(Features, GridKeypointsKeepTheirRankAndDescriptors) {
     EXPECT_EQ(cv::norm(desc.row(row), f.descriptors.row(static_cast<int>(i)), cv::NORM_HAMMING),
               0.0)
         << i;
+  }
+}
+
+// The threshold ladder finds cv::ORB's keypoints: the same set, each with the same position,
+// size, angle, response and level, on textured and faint floors at two sizes, with Harris and
+// FAST ranking; the ladder's rungs take some levels and not others (so both ways are checked).
+TEST(Features, OrbThresholdLadderFindsOrbsKeypoints) {
+  const auto by_place = [](const cv::KeyPoint& a, const cv::KeyPoint& b) {
+    if (a.octave != b.octave) return a.octave < b.octave;
+    if (a.pt.y != b.pt.y) return a.pt.y < b.pt.y;
+    return a.pt.x < b.pt.x;
+  };
+  synth::CameraOptions small;
+  small.sensor_effects = false;
+  small.width = 320;
+  small.height = 240;
+  const cv::Mat asphalt = Asphalt();
+  const cv::Mat asphalt_small = synth::Camera(small).Capture(
+      synth::Floor(synth::Surface::kAsphalt, 5), {0.4, 0.6, 1.0}, {}, {}, 1);
+  const cv::Mat concrete = synth::Camera(small).Capture(
+      synth::Floor(synth::Surface::kSmoothConcrete, 7), {0.5, 0.5, 0.3}, {}, {}, 1);
+  cv::Mat clahe_faint, clahe_concrete;
+  cv::createCLAHE(2.0, cv::Size(8, 8))->apply(Faint(asphalt, 0.3), clahe_faint);
+  cv::createCLAHE(2.0, cv::Size(8, 8))->apply(concrete, clahe_concrete);
+  int on_rungs = 0, off_rungs = 0;
+  for (const cv::Mat* image :
+       std::vector<const cv::Mat*>{&asphalt, &asphalt_small, &clahe_faint, &clahe_concrete}) {
+    for (int n : {500, 1000}) {
+      for (bool fast_score : {false, true}) {
+        OrbDetectOptions o;
+        o.num_features = n;
+        o.fast_score = fast_score;
+        o.rungs = DefaultOrbRungs(o.fast_threshold);
+        ASSERT_EQ(o.rungs, (std::vector<int>{60, 30}));
+        OrbDetectStats stats;
+        std::vector<cv::KeyPoint> ours = DetectOrbKeypoints(*image, o, &stats), theirs;
+        cv::ORB::create(n, o.scale_factor, o.num_levels, o.edge_threshold, 0, 2,
+                        fast_score ? cv::ORB::FAST_SCORE : cv::ORB::HARRIS_SCORE, o.patch_size,
+                        o.fast_threshold)
+            ->detect(*image, theirs);
+        std::sort(ours.begin(), ours.end(), by_place);
+        std::sort(theirs.begin(), theirs.end(), by_place);
+        const std::string what = std::to_string(image->cols) + " x " + std::to_string(image->rows) +
+                                 ", " + std::to_string(n) +
+                                 (fast_score ? ", FAST score" : ", Harris");
+        ASSERT_EQ(ours.size(), theirs.size()) << what;
+        for (size_t i = 0; i < ours.size(); ++i) {
+          const cv::KeyPoint &a = ours[i], &b = theirs[i];
+          ASSERT_TRUE(a.pt == b.pt && a.size == b.size && a.angle == b.angle &&
+                      a.response == b.response && a.octave == b.octave && a.class_id == b.class_id)
+              << what << ", keypoint " << i;
+        }
+        EXPECT_EQ(stats.levels, o.num_levels);
+        on_rungs += stats.levels_on_rungs;
+        off_rungs += stats.levels - stats.levels_on_rungs;
+      }
+    }
+  }
+  EXPECT_GT(on_rungs, 0);
+  EXPECT_GT(off_rungs, 0);
+  // Through the extractor (CLAHE and the grid, as the presets): the same keypoints and
+  // descriptors, in the same order, with the ladder and with cv::ORB.
+  FeatureOptions o;
+  o.contrast = Contrast::kClahe;
+  o.grid_cols = 4;
+  o.grid_rows = 3;
+  FeatureOptions plain = o;
+  plain.orb_threshold_ladder = false;
+  for (const cv::Mat* image : std::vector<const cv::Mat*>{&asphalt, &asphalt_small, &concrete}) {
+    const ImageFeatures a = FeatureExtractor(o).Extract(*image);
+    const ImageFeatures b = FeatureExtractor(plain).Extract(*image);
+    ASSERT_EQ(a.size(), b.size());
+    for (size_t i = 0; i < a.size(); ++i) {
+      EXPECT_TRUE(a.keypoints[i].x == b.keypoints[i].x && a.keypoints[i].y == b.keypoints[i].y &&
+                  a.keypoints[i].angle == b.keypoints[i].angle &&
+                  a.keypoints[i].response == b.keypoints[i].response &&
+                  a.keypoints[i].octave == b.keypoints[i].octave)
+          << i;
+    }
+    EXPECT_EQ(cv::norm(a.descriptors, b.descriptors, cv::NORM_HAMMING), 0.0);
   }
 }
 

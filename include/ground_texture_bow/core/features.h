@@ -51,6 +51,12 @@ struct FeatureOptions {
   bool orb_fast_score = false;    // rank by FAST score instead of Harris
   int orb_patch_size = 31;        // descriptor patch, pixels
   int orb_fast_threshold = 20;    // FAST threshold, grey levels
+  // ORB's keypoints found with a FAST threshold ladder per pyramid level (3x and 1.5x the
+  // threshold first, each level falling back where it has too few corners): the same
+  // keypoints as cv::ORB, with less work on textured floors (src/core/orb_detect.h). Used with
+  // the floor adaptations below (contrast, grid, adaptive threshold) at orb_first_level 0;
+  // false detects with cv::ORB itself. Not recorded in maps.
+  bool orb_threshold_ladder = true;
   // Adaptation to the floor (ORB). All off is the paper's plain ORB.
   Contrast contrast = Contrast::kNone;  // contrast adaptation before detection
   double contrast_target = 12.0;        // kNormalize: fine-detail deviation to reach, grey levels
@@ -141,7 +147,10 @@ class FeatureExtractor {
   // ORB adaptation: detectors at the FAST thresholds tried in turn (first: orb_fast_threshold),
   // each asking for the number of candidates the grid needs.
   std::vector<cv::Ptr<cv::Feature2D>> detectors_;
+  std::vector<int> detector_thresholds_;  // their FAST thresholds
+  int detector_candidates_ = 0;           // and the candidates each asks for
   bool adaptive_ = false;
+  bool ladder_ = false;  // detectors_ replaced by DetectOrbKeypoints (orb_threshold_ladder)
 };
 
 // True when the options make the paper's plain ORB or SIFT (no adaptation to the floor).
