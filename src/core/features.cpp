@@ -126,7 +126,9 @@ FeatureExtractor::FeatureExtractor(const FeatureOptions& options) : options_(opt
         detector_thresholds_.push_back(t);
       }
       detector_candidates_ = candidates;
-      ladder_ = options_.orb_threshold_ladder && options_.orb_first_level == 0;
+      ladder_ = options_.orb_threshold_ladder &&
+                OrbLadderApplies(options_.orb_first_level, options_.orb_edge_threshold,
+                                 options_.orb_patch_size);
     }
   } else {
     detector_ = cv::SIFT::create(options_.num_features, options_.sift_octave_layers,

@@ -91,6 +91,10 @@ float CentroidAngle(const cv::Mat& level, int x, int y, int half, const std::vec
 
 }  // namespace
 
+bool OrbLadderApplies(int first_level, int edge_threshold, int patch_size) {
+  return first_level == 0 && edge_threshold >= patch_size / 2 && edge_threshold >= 4;
+}
+
 std::vector<int> DefaultOrbRungs(int fast_threshold) {
   std::vector<int> rungs;
   for (int t : {3 * fast_threshold, 3 * fast_threshold / 2}) {
@@ -103,6 +107,12 @@ std::vector<cv::KeyPoint> DetectOrbKeypoints(const cv::Mat& image, const OrbDete
                                              OrbDetectStats* stats) {
   if (image.empty() || image.type() != CV_8UC1) {
     throw std::invalid_argument("DetectOrbKeypoints: expected an 8-bit single-channel image");
+  }
+  if (!OrbLadderApplies(0, o.edge_threshold, o.patch_size) || o.num_levels < 1 ||
+      o.scale_factor <= 1.0f) {
+    throw std::invalid_argument(
+        "DetectOrbKeypoints: needs edge_threshold >= max(patch_size / 2, 4), num_levels >= 1 and "
+        "scale_factor > 1");
   }
   const std::vector<int> per = FeaturesPerLevel(o);
   const int levels = o.num_levels;

@@ -37,6 +37,12 @@ struct OrbDetectStats {
   int levels_on_rungs = 0;  // levels whose candidates came from a rung
 };
 
+// Whether DetectOrbKeypoints can stand for cv::ORB with these parameters: the source image at
+// level 0, and keypoints far enough from the border (edge_threshold at least half the patch, and
+// 4) that their orientation and Harris response read no pixel outside the level (cv::ORB would
+// read its mirrored border there).
+bool OrbLadderApplies(int first_level, int edge_threshold, int patch_size);
+
 // The rungs the feature extractor uses for a base threshold t: 3t and 3t/2 (those above t
 // and at most 255).
 std::vector<int> DefaultOrbRungs(int fast_threshold);
@@ -44,7 +50,8 @@ std::vector<int> DefaultOrbRungs(int fast_threshold);
 // Keypoints as cv::ORB::create(num_features, scale_factor, num_levels, edge_threshold, 0, 2,
 // fast_score ? FAST_SCORE : HARRIS_SCORE, patch_size, fast_threshold)->detect(image) gives
 // them: the same set with the same position, size, angle, response and octave (the order
-// within a level may differ). `image`: 8-bit, one channel.
+// within a level may differ). `image`: 8-bit, one channel. Throws std::invalid_argument for
+// another image type or parameters OrbLadderApplies refuses.
 std::vector<cv::KeyPoint> DetectOrbKeypoints(const cv::Mat& image, const OrbDetectOptions& options,
                                              OrbDetectStats* stats = nullptr);
 

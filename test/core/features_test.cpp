@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <stdexcept>
 #include <string>
 #include <vector>
 
@@ -490,6 +491,15 @@ TEST(Features, OrbThresholdLadderFindsOrbsKeypoints) {
   }
   EXPECT_GT(on_rungs, 0);
   EXPECT_GT(off_rungs, 0);
+  // Keypoints whose patch would cross the border (cv::ORB reads its mirrored border there): the
+  // extractor keeps cv::ORB, the detector refuses.
+  EXPECT_FALSE(OrbLadderApplies(0, 10, 31));
+  EXPECT_FALSE(OrbLadderApplies(1, 31, 31));
+  EXPECT_TRUE(OrbLadderApplies(0, 15, 31));
+  OrbDetectOptions near_border;
+  near_border.edge_threshold = 10;
+  EXPECT_THROW(DetectOrbKeypoints(asphalt, near_border), std::invalid_argument);
+  EXPECT_THROW(DetectOrbKeypoints(cv::Mat(), OrbDetectOptions{}), std::invalid_argument);
   // Through the extractor (CLAHE and the grid, as the presets): the same keypoints and
   // descriptors, in the same order, with the ladder and with cv::ORB.
   FeatureOptions o;
