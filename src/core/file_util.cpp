@@ -100,6 +100,36 @@ void AtomicFileWriter::Fail(const std::string& why) {
 void AtomicFileWriter::Write(const void* data, size_t size) {
   if (fd_ < 0) throw std::logic_error("AtomicFileWriter: write after commit or failure");
   const char* p = static_cast<const char*>(data);
+  while (size > 0) {
+    const size_t room = kBlock - written_ % kBlock;  // bytes to the next block boundary
+    if (buffered_ == 0 && size >= room) {
+      // Straight to the file, up to the last block boundary the piece reaches.
+      const size_t n = room + (size - room) / kBlock * kBlock;
+      WriteOut(p, n);
+      p += n;
+      size -= n;
+      written_ += n;
+      continue;
+    }
+    if (!buffer_) buffer_ = std::make_unique<char[]>(kBlock);
+    const size_t n = std::min(size, room);
+    std::memcpy(buffer_.get() + buffered_, p, n);
+    buffered_ += n;
+    p += n;
+    size -= n;
+    written_ += n;
+    if (n == room) Flush();  // a whole block (or the rest of one) gathered
+  }
+}
+
+void AtomicFileWriter::Flush() {
+  if (buffered_ == 0) return;
+  const size_t n = buffered_;
+  buffered_ = 0;
+  WriteOut(buffer_.get(), n);
+}
+
+void AtomicFileWriter::WriteOut(const char* p, size_t size) {
   size_t done = 0;
   while (done < size) {
     // A file-size limit (ulimit -f, systemd's LimitFSIZE) makes write() raise SIGXFSZ, whose
@@ -124,11 +154,11 @@ void AtomicFileWriter::Write(const void* data, size_t size) {
     }
     done += static_cast<size_t>(n);
   }
-  written_ += size;
 }
 
 void AtomicFileWriter::WriteBehind(size_t offset, size_t size, bool drop) {
   if (fd_ < 0 || size == 0) return;
+  if (offset + size > written_ - buffered_) Flush();
   ::sync_file_range(
       fd_, static_cast<off_t>(offset), static_cast<off_t>(size),
       SYNC_FILE_RANGE_WAIT_BEFORE | SYNC_FILE_RANGE_WRITE | SYNC_FILE_RANGE_WAIT_AFTER);
@@ -143,6 +173,7 @@ std::shared_ptr<const MappedFile> AtomicFileWriter::CommitAndMap() { return Publ
 
 std::shared_ptr<const MappedFile> AtomicFileWriter::Publish(bool map) {
   if (fd_ < 0) throw std::logic_error("AtomicFileWriter: commit after commit or failure");
+  Flush();
   if (::fsync(fd_) != 0) Fail(Errno());
   std::shared_ptr<const MappedFile> mapped;
   if (map) {

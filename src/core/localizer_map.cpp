@@ -17,6 +17,7 @@
 //                 the index and records, not gigabytes of keypoints it may never need)
 #include <pthread.h>
 #include <sched.h>
+#include <sys/mman.h>
 #include <sys/resource.h>
 #include <sys/syscall.h>
 #include <unistd.h>
@@ -129,26 +130,50 @@ void PadFile(AtomicFileWriter* file, uint64_t to) {
   while (file->written() < to) file->Write(zeros, std::min<uint64_t>(kAlign, to - file->written()));
 }
 
+// Maps the pages of [data, data + size) of a mapped file into the process now, 64 MB per call of
+// madvise(MADV_POPULATE_READ) (Linux 5.14: the kernel maps a range in one call, where reading one
+// byte per page from here took a page fault each); where the kernel refuses it, one read per page.
+// GTBOW_SAVE_POPULATE=0 reads one byte per page throughout (as before December 2026), to compare.
 void TouchPages(const char* data, size_t size) {
-  constexpr size_t kPage = 4096;
-  volatile char sink = 0;
-  for (size_t at = 0; at < size; at += kPage) sink = sink ^ data[at];
-  (void)sink;
+  constexpr uintptr_t kPage = 4096, kStep = uintptr_t{64} << 20;
+  static const bool populate = EnvOr("GTBOW_SAVE_POPULATE", "1") != "0";
+  const uintptr_t end = reinterpret_cast<uintptr_t>(data) + size;
+  for (uintptr_t at = reinterpret_cast<uintptr_t>(data) & ~(kPage - 1); at < end; at += kStep) {
+    const size_t n = static_cast<size_t>(std::min(kStep, end - at));
+#ifdef MADV_POPULATE_READ
+    if (populate && ::madvise(reinterpret_cast<void*>(at), n, MADV_POPULATE_READ) == 0) continue;
+#endif
+    volatile char sink = 0;
+    for (size_t p = 0; p < n; p += kPage) sink = sink ^ reinterpret_cast<const char*>(at)[p];
+    (void)sink;
+  }
 }
 
-// GTBOW_SAVE_IDLE=1: the writer at SCHED_IDLE and the idle I/O class instead, as tried in
-// December 2026, to measure the two side by side (bench-map).
-bool IdlePriorities() {
-  static const bool on = EnvOr("GTBOW_SAVE_IDLE", "0") == "1";
-  return on;
+// The writer's priorities (GTBOW_SAVE_PRIORITY, for measurements; bench-map): "cpu-idle" (the
+// default): SCHED_IDLE and the lowest best-effort I/O level; "nice": nice 19 and the same I/O
+// level (the writer until December 2026); "idle": SCHED_IDLE and the idle I/O class.
+// GTBOW_SAVE_IDLE=1, the earlier switch, still means "idle".
+enum class WriterPriority { kCpuIdle, kNice, kIdle };
+WriterPriority SavePriority() {
+  static const WriterPriority p = [] {
+    if (EnvOr("GTBOW_SAVE_IDLE", "0") == "1") return WriterPriority::kIdle;
+    const std::string v = EnvOr("GTBOW_SAVE_PRIORITY", "cpu-idle");
+    if (v == "nice") return WriterPriority::kNice;
+    if (v == "idle") return WriterPriority::kIdle;
+    return WriterPriority::kCpuIdle;
+  }();
+  return p;
 }
 
 // Runs `work` on a thread of its own at low priority (its own thread: an unprivileged process
 // can lower a thread's priority but not raise it back) and waits; its exception is rethrown
-// here. CPU: nice 19. Disk: the best-effort I/O class at its lowest level. Neither starves: a
-// save finishes on a robot whose cores and disk are kept busy (the idle I/O class, tried in
-// December 2026, is served only when no other I/O waits, so a busy disk can hold it without end;
-// SCHED_IDLE gets a fifth of nice 19's share of a busy core). The work holds no lock of the
+// here. CPU: SCHED_IDLE, at nice 19 within it. Disk: the best-effort I/O class at its lowest
+// level, which is never starved (the idle I/O class, tried in December 2026, is served only when
+// no other I/O waits, so a busy disk can hold it without end). SCHED_IDLE is not a strict idle
+// class either: on a core kept busy it still gets a small share (a fifth of nice 19's), so a save
+// always finishes; what it changes is that a thread of normal priority that wakes up takes the
+// core from it at once, where a nice-19 thread may keep it for the rest of its time slice (the
+// 1,000,000-keyframe map's save stall: RESULTS.md "Save stalls"). The work holds no lock of the
 // Localizer's.
 template <class Work>
 void RunAtLowPriority(Work&& work) {
@@ -159,11 +184,12 @@ void RunAtLowPriority(Work&& work) {
     constexpr int kIoprioWhoProcess = 1, kIoprioClassBestEffort = 2, kIoprioClassIdle = 3;
     constexpr int kIoprioClassShift = 13, kLowestLevel = 7;
     int io = (kIoprioClassBestEffort << kIoprioClassShift) | kLowestLevel;
-    if (IdlePriorities()) {  // for measurements only
+    const WriterPriority priority = SavePriority();
+    if (priority != WriterPriority::kNice) {
       sched_param idle{};
       ::pthread_setschedparam(::pthread_self(), SCHED_IDLE, &idle);
-      io = kIoprioClassIdle << kIoprioClassShift;
     }
+    if (priority == WriterPriority::kIdle) io = kIoprioClassIdle << kIoprioClassShift;
     ::syscall(SYS_ioprio_set, kIoprioWhoProcess, tid, io);
     try {
       work();

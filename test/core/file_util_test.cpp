@@ -140,6 +140,42 @@ TEST_F(FileUtil, FramedFileWrittenInPiecesReadsBackAsOne) {
   EXPECT_EQ(ReadFile(dir_ / "f.bin"), ReadFile(dir_ / "g.bin"));
 }
 
+// Pieces of every size (single bytes, pieces that cross one or several buffer blocks, pieces that
+// end on a block boundary) with write-behind between them: the file holds exactly the bytes given,
+// in order, and written() counts them as they are given.
+TEST_F(FileUtil, AtomicFileWriterKeepsEveryPieceInOrder) {
+  constexpr size_t kBlock = AtomicFileWriter::kBlock;
+  std::mt19937 rng(5);
+  std::string all;
+  const fs::path f = dir_ / "pieces.bin";
+  std::shared_ptr<const MappedFile> mapped;
+  {
+    AtomicFileWriter w(f);
+    const size_t sizes[] = {1, 7, kBlock - 8, 8, kBlock, 3, 2 * kBlock + 5, kBlock - 3, 0, 4096};
+    for (int round = 0; round < 3; ++round) {
+      for (size_t size : sizes) {
+        std::string piece(size, '\0');
+        for (char& c : piece) c = static_cast<char>(rng());
+        w.Write(piece);
+        all += piece;
+        ASSERT_EQ(w.written(), all.size());
+        if (rng() % 3 == 0) w.WriteBehind(0, w.written(), rng() % 2 == 0);
+      }
+      // Many small pieces, as a map's index comes.
+      for (int i = 0; i < 3000; ++i) {
+        std::string piece(1 + rng() % 1500, static_cast<char>('a' + i % 26));
+        w.Write(piece);
+        all += piece;
+      }
+    }
+    mapped = w.CommitAndMap();
+  }
+  ASSERT_EQ(mapped->size(), all.size());
+  EXPECT_TRUE(std::equal(all.begin(), all.end(), mapped->data()));
+  EXPECT_EQ(ReadFile(f), all);
+  EXPECT_EQ(Entries(dir_), 1u);
+}
+
 TEST_F(FileUtil, ReadFileNamesMissingPath) {
   try {
     ReadFile(dir_ / "missing.bin");

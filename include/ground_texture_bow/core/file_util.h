@@ -26,19 +26,26 @@ class MappedFile;
 // to a temporary file next to `path`; Commit() flushes it to disk and renames it over `path`.
 // Destroyed without Commit() (an error, an exception), the temporary is removed and `path` is
 // untouched. Errors throw std::runtime_error naming `path` and the reason.
+// Small pieces are gathered in a buffer and written out in whole, aligned blocks of kBlock bytes
+// of the file (a piece that reaches a block boundary goes out directly): a write that ends inside
+// a file-system block makes the kernel zero the rest of that block first, and a map's index comes
+// in a million pieces of a few kilobytes. An error of the disk may therefore surface at a later
+// Write, WriteBehind or Commit than the piece that caused it; it fails the same way.
 class AtomicFileWriter {
  public:
   explicit AtomicFileWriter(std::filesystem::path path);
   ~AtomicFileWriter();
   AtomicFileWriter(const AtomicFileWriter&) = delete;
   AtomicFileWriter& operator=(const AtomicFileWriter&) = delete;
+  static constexpr size_t kBlock = size_t{1} << 20;
   void Write(const void* data, size_t size);
   void Write(std::string_view piece) { Write(piece.data(), piece.size()); }
-  size_t written() const { return written_; }
+  size_t written() const { return written_; }  // bytes given to Write, buffered ones included
   // Writes bytes [offset, offset + size) to disk and waits for it, from the calling thread
   // (write-behind for files of gigabytes: the kernel's flusher threads, which run at normal
   // priority, then have nothing left to write, and the final fsync little), and with `drop`
-  // drops them from the page cache. Best effort: never fails.
+  // drops them from the page cache. Buffered bytes in that range are written out first, which
+  // fails as Write does; the rest is best effort and never fails.
   void WriteBehind(size_t offset, size_t size, bool drop = true);
   void Commit();
   // Commit, and a read-only mapping of the bytes written (taken before the rename).
@@ -46,11 +53,15 @@ class AtomicFileWriter {
 
  private:
   std::shared_ptr<const MappedFile> Publish(bool map);
+  void WriteOut(const char* data, size_t size);  // to the file, now
+  void Flush();                                  // the buffer to the file
   [[noreturn]] void Fail(const std::string& why);
   std::filesystem::path path_;
   std::filesystem::path tmp_;
   int fd_ = -1;
   size_t written_ = 0;
+  std::unique_ptr<char[]> buffer_;  // kBlock bytes, made on the first small piece
+  size_t buffered_ = 0;             // the last buffered_ bytes of written_
 };
 
 // A whole file mapped read-only into memory (mmap, pages read on first touch and shared with
