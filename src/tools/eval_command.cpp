@@ -7,8 +7,11 @@
 #include <atomic>
 #include <chrono>
 #include <cmath>
+#include <condition_variable>
 #include <cstdio>
+#include <exception>
 #include <fstream>
+#include <functional>
 #include <iomanip>
 #include <map>
 #include <memory>
@@ -221,9 +224,90 @@ MaintenanceResult Maintain(const EvalArgs& a, const RetrievalConfig& c, const Bo
   return mr;
 }
 
+// --timing-alternate: the presets' timed queries side by side, as --timing-kernels times the
+// kernels. Each preset runs on a thread of its own, and only one thread works at a time: the
+// presets, in the order given, up to their timing; there each hands over its one-query timing
+// and waits. The calling thread (Run) then times every query through every preset, the order
+// rotating from query to query, so that a change in the machine's speed falls on every preset
+// alike; then the presets finish, again in order. A preset's locals stay alive on its waiting
+// thread while the calling thread times through them.
+class TimingRotation {
+ public:
+  struct Abandoned {};  // another preset failed: this one stops too
+  explicit TimingRotation(size_t presets) : time_(presets), sizes_(presets) {}
+
+  // Preset k waits for its turn; false when the rotation was abandoned.
+  bool Begin(size_t k) {
+    std::unique_lock<std::mutex> lock(m_);
+    cv_.wait(lock, [&] { return failed_ || turn_ == k; });
+    return !failed_;
+  }
+  // Preset k hands over `time_one` (times query i of its `queries` timed queries) and waits
+  // until every query is timed and its turn has come again; throws Abandoned when it was.
+  void Arrive(size_t k, std::function<void(size_t)> time_one, size_t queries) {
+    std::unique_lock<std::mutex> lock(m_);
+    time_[k] = std::move(time_one);
+    sizes_[k] = queries;
+    ++turn_;
+    cv_.notify_all();
+    cv_.wait(lock, [&] { return failed_ || (timed_ && after_ == k); });
+    if (failed_) throw Abandoned{};
+  }
+  // Preset k is done: the next one's turn.
+  void Finish(size_t k) {
+    std::lock_guard<std::mutex> lock(m_);
+    if (timed_) after_ = k + 1;
+    cv_.notify_all();
+  }
+  // A preset (or the timing) failed: every waiting thread stops.
+  void Fail() {
+    std::lock_guard<std::mutex> lock(m_);
+    failed_ = true;
+    cv_.notify_all();
+  }
+  // The calling thread: waits for every preset, times, and lets them finish. Throws what a
+  // timing threw (after Fail).
+  void Run(bool quiet) {
+    {
+      std::unique_lock<std::mutex> lock(m_);
+      cv_.wait(lock, [&] { return failed_ || turn_ == time_.size(); });
+      if (failed_) return;
+    }
+    try {
+      const size_t n = time_.size(), queries = sizes_[0];
+      for (size_t s : sizes_) {
+        if (s != queries)
+          throw std::logic_error("--timing-alternate: the presets timed different queries");
+      }
+      ProgressBar bar("timing, presets side by side", queries, !quiet);
+      for (size_t qi = 0; qi < queries; ++qi) {
+        for (size_t j = 0; j < n; ++j) time_[(qi + j) % n](qi);
+        bar.Add();
+      }
+      bar.Finish();
+    } catch (...) {
+      Fail();
+      throw;
+    }
+    std::lock_guard<std::mutex> lock(m_);
+    timed_ = true;
+    after_ = 0;
+    cv_.notify_all();
+  }
+
+ private:
+  std::mutex m_;
+  std::condition_variable cv_;
+  std::vector<std::function<void(size_t)>> time_;
+  std::vector<size_t> sizes_;
+  size_t turn_ = 0, after_ = 0;
+  bool timed_ = false, failed_ = false;
+};
+
 PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const Dataset& ds,
                         const std::vector<std::string>& splits, std::string* rankings,
-                        std::string* poses, std::string* verifications) {
+                        std::string* poses, std::string* verifications,
+                        TimingRotation* rotation = nullptr, size_t rotation_index = 0) {
   PresetResult pr;
   pr.file = preset_file;
   pr.name = PresetName(preset_file);
@@ -588,13 +672,22 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
     dst->total = Summarise(s.to);
   };
   Samples main_samples;
-  ProgressBar bar("timing", pool.size(), !a.quiet);
-  for (const auto& [s, i] : pool) {
+  auto time_one = [&](size_t qi) {
+    const auto& [s, i] = pool[qi];
     time_query(q_sources[s].LoadGray(i), s, i, &main_samples);
-    bar.Add();
+  };
+  if (rotation != nullptr) {
+    rotation->Arrive(rotation_index, time_one, pool.size());
+  } else {
+    ProgressBar bar("timing", pool.size(), !a.quiet);
+    for (size_t qi = 0; qi < pool.size(); ++qi) {
+      time_one(qi);
+      bar.Add();
+    }
+    bar.Finish();
   }
-  bar.Finish();
   pr.timed = pool.size();
+  pr.timed_side_by_side = rotation != nullptr;
   summarise(main_samples, &pr);
   if (!a.timing_kernels.empty()) {
     // Side by side: a change in the machine's speed falls on every kernel alike.
@@ -663,10 +756,52 @@ void RunEval(const EvalArgs& a) {
         "preset,split,query,rank,image,score,matches,inliers,residual_px,spread_px,"
         "theta_sigma_deg,second_inliers,angle_agreement,error_mm,error_deg,wrong,x,y,theta,true_x,"
         "true_y,true_theta\n";
-    for (const auto& p : presets) {
-      std::string rankings = "query,rank,image,score\n", poses = "query,x,y,theta,inliers\n";
-      results.push_back(EvalPreset(a, p, ds, splits, &rankings, &poses, &verifications));
-      results.back().table_row = rows[results.size() - 1];
+    const size_t np = presets.size();
+    std::vector<std::string> rankings_of(np, "query,rank,image,score\n"),
+        poses_of(np, "query,x,y,theta,inliers\n"), verifications_of(np);
+    if (a.timing_alternate && np > 1) {
+      TimingRotation rotation(np);
+      std::vector<PresetResult> out(np);
+      std::vector<std::exception_ptr> errors(np);
+      std::vector<std::thread> threads;
+      for (size_t k = 0; k < np; ++k) {
+        threads.emplace_back([&, k] {
+          try {
+            if (!rotation.Begin(k)) return;
+            out[k] = EvalPreset(a, presets[k], ds, splits, &rankings_of[k], &poses_of[k],
+                                &verifications_of[k], &rotation, k);
+            rotation.Finish(k);
+          } catch (const TimingRotation::Abandoned&) {
+          } catch (...) {
+            errors[k] = std::current_exception();
+            rotation.Fail();
+          }
+        });
+      }
+      std::exception_ptr timing_error;
+      try {
+        rotation.Run(a.quiet);
+      } catch (...) {
+        timing_error = std::current_exception();
+      }
+      for (auto& t : threads) t.join();
+      for (const auto& e : errors) {
+        if (e) std::rethrow_exception(e);
+      }
+      if (timing_error) std::rethrow_exception(timing_error);
+      results = std::move(out);
+    } else {
+      for (size_t k = 0; k < np; ++k) {
+        results.push_back(EvalPreset(a, presets[k], ds, splits, &rankings_of[k], &poses_of[k],
+                                     &verifications_of[k]));
+      }
+    }
+    for (size_t k = 0; k < np; ++k) {
+      const std::string& p = presets[k];
+      std::string& rankings = rankings_of[k];
+      std::string& poses = poses_of[k];
+      verifications += verifications_of[k];
+      results[k].table_row = rows[k];
       // One file per preset: FILE itself for a single preset, FILE.<preset>.csv otherwise.
       auto target = [&](const std::string& file) {
         if (presets.size() == 1) return file;
@@ -724,6 +859,10 @@ void RegisterEval(CLI::App& app) {
   cmd->add_option("--timing-queries", a->timing_queries,
                   "Random queries timed against the full database")
       ->capture_default_str();
+  cmd->add_flag("--timing-alternate", a->timing_alternate,
+                "With several presets, time them side by side: each timed query runs through "
+                "every preset in turn, the order rotating, so that a change in the machine's "
+                "speed falls on every preset alike (every preset's map is kept in memory)");
   cmd->add_option("--timing-kernels", a->timing_kernels,
                   "Also time each of these SIMD kernels (portable, popcnt, avx2, avx512, neon) "
                   "on every timed query, side by side (a kernel the CPU lacks runs the next one "

@@ -165,6 +165,7 @@ std::string ToJson(const EvalArgs& a, const Dataset& ds, const std::vector<Prese
     j.Close(']');
     j.Key("timing").Open('{');
     j.Key("queries").Int(static_cast<long long>(pr.timed));
+    j.Key("presets_side_by_side").Bool(pr.timed_side_by_side);
     j.Key("kernels").Open('{').Key("hamming").Str(ActiveHammingKernelName());
     j.Key("l2_bytes").Str(ActiveByteDistanceKernelName()).Close('}');
     // The stages of PresetResult and of each KernelTiming.
@@ -269,9 +270,10 @@ std::string ToMarkdown(const EvalArgs& a, const std::vector<PresetResult>& resul
       md << b;
     }
     const PaperTiming& p = PaperTimingFor(pr.config);
-    md << "\nTiming over " << pr.timed
-       << " random queries against the full database, one thread (ms; kernels: "
-       << ActiveSimdKernels() << "; paper: " << p.name << ", i7-13700, 32,251 images):\n\n";
+    md << "\nTiming over " << pr.timed << " random queries against the full database, one thread"
+       << (pr.timed_side_by_side ? ", the presets side by side (the order rotating)" : "")
+       << " (ms; kernels: " << ActiveSimdKernels() << "; paper: " << p.name
+       << ", i7-13700, 32,251 images):\n\n";
     md << "| stage | paper mean ± sd | here mean ± sd | here median | here p95 |\n| --- | --- | "
           "--- | --- | --- |\n";
     auto row = [&](const char* name, const double* paper, const TimingStats& s) {

@@ -52,6 +52,9 @@ struct EvalArgs {
   // Kernels timed side by side (SetSimdLimit names): each timed query runs under each of them
   // in turn, the order rotating from query to query.
   std::vector<std::string> timing_kernels;
+  // The presets timed side by side: each timed query runs through every preset in turn, the
+  // order rotating from query to query (TimingRotation in eval_command.cpp).
+  bool timing_alternate = false;
   int candidates = 0;   // 0: each preset's verification.candidates
   int min_inliers = 0;  // 0: each preset's verification.min_inliers
   // Sequence queries: each query with the sequence - 1 images of its trail (gtbow synth
@@ -136,6 +139,7 @@ struct PresetResult {
   };
   std::vector<KernelTiming> by_kernel;
   size_t timed = 0;
+  bool timed_side_by_side = false;  // --timing-alternate: timed in turn with the other presets
   size_t db_images = 0;
   RetrievalConfig config;
   MaintenanceResult maintenance;  // --maintain

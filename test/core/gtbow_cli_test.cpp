@@ -115,11 +115,42 @@ TEST_F(GtbowCli, TrainEvaluateAndBenchmarkOnASyntheticFloor) {
     EXPECT_LE(wrong, verified);
     EXPECT_GE(wrong, estimated - localized);  // a wrong estimate is a wrong verified pose
     const double r100 = b["recall_at_100_precision_verified"].as<double>();
-    if (estimated == localized) EXPECT_DOUBLE_EQ(r100, localized / counted);
+    if (estimated == localized) {
+      EXPECT_DOUBLE_EQ(r100, localized / counted);
+    }
     const double r100_bow = b["recall_at_100_precision_bow_top1"].as<double>();
     EXPECT_GE(r100_bow, 0.0);
     EXPECT_LE(r100_bow, 1.0);
     EXPECT_EQ(b["pr_verified"]["precision"].size(), b["pr_verified"]["recall"].size());
+  }
+  // Two presets timed side by side (--timing-alternate): each timed query through both in turn;
+  // everything but the timing is what the presets give one after the other.
+  for (const char* mode : {"seq2", "alt2"}) {
+    r = RunGtbow("eval --dataset " + d + " --vocab " + Out("v.gtvoc") + " --out " + Out(mode) +
+                 " --preset " GTBOW_CONFIG_DIR "/high_accuracy.yaml --preset " GTBOW_CONFIG_DIR
+                 "/fast.yaml --query-splits query_day000 --timing-queries 3 --no-cache" +
+                 " --no-plots -q" + (std::string(mode) == "alt2" ? " --timing-alternate" : ""));
+    ASSERT_EQ(r.code, 0) << r.output;
+  }
+  {
+    const YAML::Node one = YAML::LoadFile((dir_ / "seq2" / "results.json").string());
+    const YAML::Node alt = YAML::LoadFile((dir_ / "alt2" / "results.json").string());
+    ASSERT_EQ(alt["presets"].size(), 2u);
+    for (size_t k = 0; k < 2; ++k) {
+      const YAML::Node a = alt["presets"][k], o = one["presets"][k];
+      EXPECT_EQ(a["name"].as<std::string>(), o["name"].as<std::string>());
+      EXPECT_EQ(a["timing"]["queries"].as<int>(), 3);
+      EXPECT_TRUE(a["timing"]["presets_side_by_side"].as<bool>());
+      EXPECT_FALSE(o["timing"]["presets_side_by_side"].as<bool>());
+      EXPECT_GT(a["timing"]["end_to_end"]["median_ms"].as<double>(), 0.0);
+      EXPECT_EQ(YAML::Dump(a["splits"]), YAML::Dump(o["splits"]));
+    }
+    auto text = [](const fs::path& p) {
+      std::ifstream in(p);
+      return std::string(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+    };
+    EXPECT_FALSE(text(dir_ / "alt2" / "verifications.csv").empty());
+    EXPECT_EQ(text(dir_ / "alt2" / "verifications.csv"), text(dir_ / "seq2" / "verifications.csv"));
   }
   // Sequence queries: each query with the two images of its trail, through their odometry.
   EXPECT_TRUE(fs::exists(fs::path(d) / "trail_day090_odometry.csv"));
