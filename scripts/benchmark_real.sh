@@ -92,7 +92,7 @@ for surface in smooth_concrete epoxy; do
     --preset "$cfg/ablation/changing/query_only.yaml" \
     --preset "$cfg/ablation/changing/transient_only.yaml" --preset "$cfg/ablation/changing/both_polarities.yaml" \
     --preset "$cfg/ablation/changing/guided.yaml" --preset "$cfg/ablation/changing/guided_repeat_check.yaml" \
-    --out "$out-$surface" --timing-queries 20 --no-plots -q > /dev/null
+    --out "$out-$surface" --timing-queries 20 --timing-alternate --no-plots -q > /dev/null
   lc+=("$out-$surface/results.json")
   for n in 3 5; do
     "$gtbow" eval --dataset "$data-$surface" --words 5000 --preset "$cfg/high_accuracy.yaml" \
