@@ -764,19 +764,28 @@ void RunEval(const EvalArgs& a) {
       std::vector<PresetResult> out(np);
       std::vector<std::exception_ptr> errors(np);
       std::vector<std::thread> threads;
+      auto join_all = [&] {
+        for (auto& t : threads) t.join();
+      };
       for (size_t k = 0; k < np; ++k) {
-        threads.emplace_back([&, k] {
-          try {
-            if (!rotation.Begin(k)) return;
-            out[k] = EvalPreset(a, presets[k], ds, splits, &rankings_of[k], &poses_of[k],
-                                &verifications_of[k], &rotation, k);
-            rotation.Finish(k);
-          } catch (const TimingRotation::Abandoned&) {
-          } catch (...) {
-            errors[k] = std::current_exception();
-            rotation.Fail();
-          }
-        });
+        try {
+          threads.emplace_back([&, k] {
+            try {
+              if (!rotation.Begin(k)) return;
+              out[k] = EvalPreset(a, presets[k], ds, splits, &rankings_of[k], &poses_of[k],
+                                  &verifications_of[k], &rotation, k);
+              rotation.Finish(k);
+            } catch (const TimingRotation::Abandoned&) {
+            } catch (...) {
+              errors[k] = std::current_exception();
+              rotation.Fail();
+            }
+          });
+        } catch (...) {  // the system refused a thread: stop the ones started
+          rotation.Fail();
+          join_all();
+          throw;
+        }
       }
       std::exception_ptr timing_error;
       try {
@@ -784,7 +793,7 @@ void RunEval(const EvalArgs& a) {
       } catch (...) {
         timing_error = std::current_exception();
       }
-      for (auto& t : threads) t.join();
+      join_all();
       for (const auto& e : errors) {
         if (e) std::rethrow_exception(e);
       }
