@@ -25,6 +25,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdio>
 #include <cstdlib>
 #include <cstring>
 #include <exception>
@@ -160,6 +161,11 @@ WriterPriority SavePriority() {
     const std::string v = EnvOr("GTBOW_SAVE_PRIORITY", "cpu-idle");
     if (v == "nice") return WriterPriority::kNice;
     if (v == "idle") return WriterPriority::kIdle;
+    if (v != "cpu-idle") {
+      std::fprintf(stderr,
+                   "gtbow: GTBOW_SAVE_PRIORITY=%s is not cpu-idle, nice or idle: cpu-idle\n",
+                   v.c_str());
+    }
     return WriterPriority::kCpuIdle;
   }();
   return p;
