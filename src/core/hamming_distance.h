@@ -5,6 +5,7 @@
 //   popcnt    x86-64's 64-bit POPCNT instruction
 //   avx2      packed scans: a 4-bit table lookup (vpshufb) per byte and a sum of absolute
 //             differences (vpsadbw) per 64-bit lane, 4 rows per register; POPCNT for pairs
+//             (not chosen on AMD's first Zen cores unless GTBOW_SIMD=avx2: popcnt is faster there)
 //   avx512    packed scans: AVX-512 VPOPCNTDQ, 8 rows per register; POPCNT for pairs
 //   neon      aarch64's per-byte count (vcnt) and pairwise widening adds
 // Every kernel gives the same distances, bit for bit. Private to the core.

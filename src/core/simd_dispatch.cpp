@@ -66,6 +66,14 @@ bool SetSimdLimit(const std::string& name) {
   return true;
 }
 
+std::string SimdLimit() {
+  const int rank = SimdRankAllowed();
+  for (const NamedRank& r : kRanks) {
+    if (r.rank == rank) return r.name;
+  }
+  return "";
+}
+
 std::string ActiveSimdKernels() {
   return std::string("hamming ") + ActiveHammingKernelName() + ", l2_bytes " +
          ActiveByteDistanceKernelName();

@@ -691,7 +691,7 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
   summarise(main_samples, &pr);
   if (!a.timing_kernels.empty()) {
     // Side by side: a change in the machine's speed falls on every kernel alike.
-    const std::string active = ActiveHammingKernelName();
+    const std::string limit = SimdLimit();
     const size_t nk = a.timing_kernels.size();
     std::vector<Samples> samples(nk);
     pr.by_kernel.resize(nk);
@@ -711,7 +711,7 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
       kbar.Add();
     }
     kbar.Finish();
-    SetSimdLimit(active);
+    SetSimdLimit(limit);
     for (size_t k = 0; k < nk; ++k) summarise(samples[k], &pr.by_kernel[k]);
   }
   return pr;
@@ -877,7 +877,7 @@ void RegisterEval(CLI::App& app) {
                   "on every timed query, side by side (a kernel the CPU lacks runs the next one "
                   "down)")
       ->check([](const std::string& name) {
-        const std::string before = ActiveHammingKernelName();
+        const std::string before = SimdLimit();
         if (!SetSimdLimit(name)) return std::string("not a SIMD kernel of this build: ") + name;
         SetSimdLimit(before);
         return std::string();

@@ -62,7 +62,7 @@ TEST(HammingDistance, EveryKernelIsReportedAndThePortableOneIsAlwaysThere) {
 // SetSimdLimit (gtbow eval --timing-kernels) switches the dispatched calls to each kernel the
 // CPU has, and back; unknown names change nothing.
 TEST(HammingDistance, SetSimdLimitSwitchesTheDispatchedKernelAndBack) {
-  const std::string before = ActiveHammingKernelName();
+  const std::string limit = SimdLimit(), before = ActiveHammingKernelName();
   std::mt19937 rng(5);
   std::vector<uint8_t> rows(37 * 32);
   for (auto& b : rows) b = static_cast<uint8_t>(rng());
@@ -79,7 +79,35 @@ TEST(HammingDistance, SetSimdLimitSwitchesTheDispatchedKernelAndBack) {
     EXPECT_EQ(got, want) << HammingKernelName(k);
   }
   EXPECT_FALSE(SetSimdLimit("sse9"));
-  ASSERT_TRUE(SetSimdLimit(before));
+  ASSERT_TRUE(SetSimdLimit(limit));
+  EXPECT_EQ(SimdLimit(), limit);
+  EXPECT_STREQ(ActiveHammingKernelName(), before.c_str());
+}
+
+// With no cap, the widest kernel the CPU runs, except on AMD's first Zen cores (their 256-bit
+// instructions run as two halves), where the popcnt kernel is the faster one; GTBOW_SIMD=avx2
+// still forces avx2 there.
+TEST(HammingDistance, TheWidestKernelRunsButPopcntOnTheFirstZenCores) {
+  const std::string limit = SimdLimit(), before = ActiveHammingKernelName();
+  HammingKernel widest = HammingKernel::kPortable;
+  for (HammingKernel k : Kernels()) widest = k;  // kAllHammingKernels is in rank order
+  bool first_zen = false;
+#if defined(__x86_64__)
+  __builtin_cpu_init();
+  first_zen = __builtin_cpu_is("znver1");
+#endif
+  std::printf("widest kernel %s, first Zen core: %s\n", HammingKernelName(widest),
+              first_zen ? "yes" : "no");
+  ASSERT_TRUE(SetSimdLimit(""));
+  EXPECT_EQ(SimdLimit(), "");
+  if (widest == HammingKernel::kAvx2 && first_zen) {
+    EXPECT_EQ(ActiveHammingKernel(), HammingKernel::kPopcnt);
+    ASSERT_TRUE(SetSimdLimit("avx2"));
+    EXPECT_EQ(ActiveHammingKernel(), HammingKernel::kAvx2);
+  } else {
+    EXPECT_EQ(ActiveHammingKernel(), widest);
+  }
+  ASSERT_TRUE(SetSimdLimit(limit));
   EXPECT_STREQ(ActiveHammingKernelName(), before.c_str());
 }
 

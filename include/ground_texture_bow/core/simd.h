@@ -22,5 +22,9 @@ std::string ActiveSimdKernels();
 // the cap). Returns false, changing nothing, for a name this build does not know. Not while
 // another thread runs the engine.
 bool SetSimdLimit(const std::string& name);
+// The cap in force, as SetSimdLimit takes it back: the name of the widest kernel allowed, or ""
+// for none. (Not always the active kernel's name: a CPU may lack the kernel named, and the
+// Hamming distances run popcnt below an avx2 cap on AMD's first Zen cores.)
+std::string SimdLimit();
 
 }  // namespace gtbow
