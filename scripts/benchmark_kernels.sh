@@ -24,7 +24,11 @@ cfg="$here/config"
 [ -f "$data/dataset.yaml" ] || bash "$here/scripts/real_floor_dataset.sh" "$gtbow" "$photos" "$data"
 mkdir -p "$out"
 # The CPU, for the report (the claim against the authors' quoted timing holds for its CPU only).
-sed -n 's/^model name[[:space:]]*: //p' /proc/cpuinfo | head -1 > "$out/cpu.txt"
+# With its family and model: AMD's first Zen cores (family 23 below model 48) are another machine
+# than the EPYC the authors' code was timed on.
+printf '%s (family %s, model %s)\n' "$(sed -n 's/^model name[[:space:]]*: //p' /proc/cpuinfo | head -1)" \
+  "$(sed -n 's/^cpu family[[:space:]]*: //p' /proc/cpuinfo | head -1)" \
+  "$(sed -n 's/^model[[:space:]]*: //p' /proc/cpuinfo | head -1)" > "$out/cpu.txt"
 # A kernel this CPU lacks runs the next one down; write_kernels.py reads the kernel each run
 # reports and keeps one row per kernel.
 kernels=(portable popcnt avx2 avx512)

@@ -752,6 +752,16 @@ class Kernels(Base):
         d = self.run_dir(transform={"avx2": 3.1}, cpu="Intel(R) Xeon(R) Processor")
         self.expect(OK, "write_kernels.py", d, self.docs)
         self.assertIn("not checked: the authors' code was timed on an AMD EPYC", self.section("kernels"))
+        # An EPYC of the first Zen generation is another machine too.
+        d = self.run_dir(transform={"avx2": 4.6}, cpu="AMD EPYC (family 23, model 1)")
+        self.expect(OK, "write_kernels.py", "--check", d)
+        self.expect(OK, "write_kernels.py", d, self.docs)
+        self.assertIn("of a later Zen generation than the first; this run's CPU: AMD EPYC (family 23",
+                      self.section("kernels"))
+        # A later one (family 23, model 49) is checked.
+        self.expect(MISSED, "write_kernels.py", "--check",
+                    self.run_dir(transform={"avx2": 3.1}, cpu="AMD EPYC 7B12 (family 23, model 49)"),
+                    why="authors")
 
     def test_training_too_slow(self):
         self.expect(MISSED, "write_kernels.py", "--check", self.run_dir(train_avx2="31.5"), why="training")
