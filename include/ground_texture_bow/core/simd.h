@@ -23,8 +23,8 @@ std::string ActiveSimdKernels();
 // another thread runs the engine.
 bool SetSimdLimit(const std::string& name);
 // The cap in force, as SetSimdLimit takes it back: the name of the widest kernel allowed, or ""
-// for none. (Not always the active kernel's name: a CPU may lack the kernel named, and the
-// Hamming distances run popcnt below an avx2 cap on AMD's first Zen cores.)
+// for none. (Not always the active kernel's name: a CPU may lack the kernel named, and on AMD's
+// first Zen cores the Hamming distances run popcnt, not avx2, unless the cap is avx2.)
 std::string SimdLimit();
 
 }  // namespace gtbow
