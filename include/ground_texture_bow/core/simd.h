@@ -1,7 +1,8 @@
 // The SIMD kernels the engine runs on this CPU, by name, for reports beside timings. They are
 // chosen at run time, once per process (SetSimdLimit aside): the widest the CPU supports, or up to
 // the one that the environment variable GTBOW_SIMD names (portable, popcnt, avx2, avx512 on x86-64;
-// portable, neon on aarch64). Unset: every instruction set the CPU has.
+// portable, neon on aarch64). Unset: every instruction set the CPU has. (One exception: on AMD's
+// first Zen cores the Hamming distances run popcnt, the faster there, unless GTBOW_SIMD=avx2.)
 #pragma once
 
 #include <string>
