@@ -24,8 +24,8 @@ cfg="$here/config"
 [ -f "$data/dataset.yaml" ] || bash "$here/scripts/real_floor_dataset.sh" "$gtbow" "$photos" "$data"
 mkdir -p "$out"
 # The CPU, for the report (the claim against the authors' quoted timing holds for its CPU only).
-# With its family and model: AMD's first Zen cores (family 23 below model 48) are another machine
-# than the EPYC the authors' code was timed on.
+# With its family and model (AMD's first Zen cores, family 23 below model 48, run the popcnt
+# kernel rather than avx2 by default).
 printf '%s (family %s, model %s)\n' "$(sed -n 's/^model name[[:space:]]*: //p' /proc/cpuinfo | head -1)" \
   "$(sed -n 's/^cpu family[[:space:]]*: //p' /proc/cpuinfo | head -1)" \
   "$(sed -n 's/^model[[:space:]]*: //p' /proc/cpuinfo | head -1)" > "$out/cpu.txt"

@@ -309,19 +309,18 @@ SOAK = {
 # -march=native (RESULTS.md 'Kernels: what is met and what is not').
 AUTHORS_TRANSFORM_MS = 8.7
 # The CPU it was measured on (a substring of /proc/cpuinfo's model name, so any AMD EPYC): the
-# claim against it is checked only on such a CPU (on another the row says so; the authors' code
-# has not been timed there).
+# target against it is checked only on such a CPU (on another the row says so; the authors' code
+# has not been timed there). An open target: on an EPYC of the first Zen generation their code
+# took 9.30 ms (close to the quoted figure) and ours 4.6 ms, 1.9x (RESULTS.md).
 AUTHORS_TRANSFORM_CPU = "AMD EPYC"
-# ...but not one of AMD's first Zen cores (write_kernels.first_zen), on which our AVX2 kernel is
-# slower than POPCNT, where it was 1.56 times faster on the authors' EPYC: another machine.
-AUTHORS_TRANSFORM_CPU_NOT = " of a later Zen generation than the first"
 KERNELS = {
     "avx2_ratio": open_("BoW transform, high accuracy, avx2 against avx512", "<=", 1.5, "x",
                         "RESULTS.md 'Kernels: what is met and what is not'"),
     "popcnt_ratio": open_("BoW transform, high accuracy, popcnt against avx512", "<=", 2.5, "x",
                           "RESULTS.md 'Kernels: what is met and what is not'"),
-    "avx2_vs_authors": claim("BoW transform, high accuracy, avx2: 3x faster than the authors' "
-                             "8.7 ms (quoted)", "<=", AUTHORS_TRANSFORM_MS / 3, "ms"),
+    "avx2_vs_authors": open_("BoW transform, high accuracy, avx2: 3x faster than the authors' "
+                             "8.7 ms (quoted)", "<=", AUTHORS_TRANSFORM_MS / 3, "ms",
+                             "RESULTS.md 'Kernels: what is met and what is not'"),
     "train_avx2_s": claim("vocabulary training, V = 20,000 on 240 images, one thread, avx2", "<=",
                           30.0, "s"),
 }

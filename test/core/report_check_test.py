@@ -745,22 +745,20 @@ class Kernels(Base):
         self.expect(MISSED, "write_kernels.py", "--check", "--strict", d, why="avx2 against avx512")
 
     def test_the_authors_timing_is_compared_on_its_cpu_only(self):
-        # 3.1 ms with avx2 misses the claim (8.7 / 3) on the CPU the authors' code was timed on...
-        self.expect(MISSED, "write_kernels.py", "--check", self.run_dir(transform={"avx2": 3.1}),
-                    why="authors")
+        # 3.1 ms with avx2 misses the target (8.7 / 3) on the CPU the authors' code was timed on
+        # (an open target: it fails with --strict)...
+        self.expect(OK, "write_kernels.py", "--check", self.run_dir(transform={"avx2": 3.1}))
+        self.expect(MISSED, "write_kernels.py", "--check", "--strict",
+                    self.run_dir(transform={"avx2": 3.1}), why="authors")
         # ...and on another CPU the row has no verdict.
         d = self.run_dir(transform={"avx2": 3.1}, cpu="Intel(R) Xeon(R) Processor")
         self.expect(OK, "write_kernels.py", d, self.docs)
         self.assertIn("not checked: the authors' code was timed on an AMD EPYC", self.section("kernels"))
-        # An EPYC of the first Zen generation is another machine too.
-        d = self.run_dir(transform={"avx2": 4.6}, cpu="AMD EPYC (family 23, model 1)")
-        self.expect(OK, "write_kernels.py", "--check", d)
-        self.expect(OK, "write_kernels.py", d, self.docs)
-        self.assertIn("of a later Zen generation than the first; this run's CPU: AMD EPYC (family 23",
-                      self.section("kernels"))
-        # A later one (family 23, model 49) is checked.
-        self.expect(MISSED, "write_kernels.py", "--check",
-                    self.run_dir(transform={"avx2": 3.1}, cpu="AMD EPYC 7B12 (family 23, model 49)"),
+        # The family and model that benchmark_kernels.sh adds change nothing: any EPYC is checked.
+        self.expect(OK, "write_kernels.py", "--check",
+                    self.run_dir(transform={"avx2": 4.6}, cpu="AMD EPYC (family 23, model 1)"))
+        self.expect(MISSED, "write_kernels.py", "--check", "--strict",
+                    self.run_dir(transform={"avx2": 4.6}, cpu="AMD EPYC (family 23, model 1)"),
                     why="authors")
 
     def test_training_too_slow(self):
