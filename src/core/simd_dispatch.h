@@ -7,8 +7,8 @@
 // and runs the highest-ranked kernel that this build has, the CPU supports and GTBOW_SIMD
 // allows (one exception: the Hamming distances run popcnt rather than avx2 on AMD's first Zen
 // cores unless the cap is avx2 itself; hamming_distance.cpp, PopcntBeatsAvx2). GTBOW_SIMD=NAME
-// (one of the names above) allows the kernels up to NAME's rank: it
-// forces NAME where the family has that kernel and the CPU runs it, else the next narrower one
+// (one of the names above) allows the kernels up to NAME's rank: it forces NAME where the
+// family has that kernel and the CPU runs it, else the next narrower one
 // (the byte distances have no popcnt kernel: GTBOW_SIMD=popcnt runs their portable one).
 // Unset or empty: everything the CPU supports. A name this build does not know (or one of the
 // other architecture's) is reported once on stderr and ignored. The variable is read once per
