@@ -23,7 +23,7 @@ bash "$root/scripts/link_package.sh" "$root" "$ws/src/ground_texture_bow"
 echo "ThreadSanitizer: building the concurrency tests (log: $log)"
 if ! catkin_make -C "$ws" -DCMAKE_BUILD_TYPE=RelWithDebInfo -DGTBOW_SANITIZE_THREAD=ON \
     -DCATKIN_ENABLE_TESTING=ON -j"${JOBS:-2}" \
-    database_test crash_safety_test localizer_rostest ground_texture_bow_nodelet > "$log" 2>&1; then
+    database_test crash_safety_test localizer_soak_rostest ground_texture_bow_nodelet > "$log" 2>&1; then
   tail -n 40 "$log"
   echo "ThreadSanitizer: build failed: see $log"
   exit 1
@@ -46,7 +46,7 @@ out="$ws/../tsan-soak"
 rm -rf "$out"
 mkdir -p "$out"
 rostest --text "$root/test/ros/soak.test" data:="$data" seconds:="$seconds" out:="$out" \
-  save_every:=10 check_memory:=false > "$out/rostest.log" 2>&1
+  client:=localizer_soak_rostest save_every:=10 check_memory:=false > "$out/rostest.log" 2>&1
 if grep -q "\[  PASSED  \] 1 test" "$out/rostest.log"; then
   echo "ThreadSanitizer: soak.test for ${seconds} s passed ($(grep -h '^soak:' "$out/rostest.log" | tail -n1))"
 else

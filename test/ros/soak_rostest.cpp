@@ -20,7 +20,8 @@ pid_t FindProcess(const std::string& needle) {
     std::string cmd((std::istreambuf_iterator<char>(f)), std::istreambuf_iterator<char>());
     std::replace(cmd.begin(), cmd.end(), '\0', ' ');
     if (cmd.find(needle) != std::string::npos &&
-        cmd.find("localizer_rostest") == std::string::npos) {
+        cmd.find("localizer_rostest") == std::string::npos &&
+        cmd.find("localizer_soak_rostest") == std::string::npos) {
       return static_cast<pid_t>(std::stol(name));
     }
   }
