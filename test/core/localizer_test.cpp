@@ -50,6 +50,7 @@ const Scene& TheScene() {
     s.so = floor.options();
     RetrievalConfig cfg;
     cfg.vocabulary.num_words = 2000;
+    cfg.vocabulary.train_checks = 256;  // training's search effort cut for a unit test's time
     const FeatureExtractor fx(cfg.features);
     std::vector<cv::Mat> train;
     std::vector<uint32_t> image_of;

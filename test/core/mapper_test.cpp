@@ -46,6 +46,7 @@ const Drive& TheDrive() {
     d.so = floor.options();
     RetrievalConfig cfg;
     cfg.vocabulary.num_words = 1000;
+    cfg.vocabulary.train_checks = 256;  // training's search effort cut for a unit test's time
     const FeatureExtractor fx(cfg.features);
     std::vector<cv::Mat> train;
     std::vector<uint32_t> image_of;
