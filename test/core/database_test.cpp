@@ -348,7 +348,9 @@ TEST_P(DatabaseScale, BlocksThreadsAndStorageGiveIdenticalAnswers) {
     ExpectSameResults(ref, mapped.Query(q, 20));
     ExpectSameResults(ref, blob.Query(q, 20));
     ASSERT_FALSE(ref.empty());
-    if (n % 2 == 0 && src != 17) EXPECT_EQ(ref[0].image, src);
+    if (n % 2 == 0 && src != 17) {
+      EXPECT_EQ(ref[0].image, src);
+    }
     for (const auto& r : ref) {
       EXPECT_NE(r.image, 17u);
       const float naive = NaiveScore(q, vecs[r.image], 6);

@@ -174,7 +174,9 @@ TEST(Localizer, TrustedVerificationLocalizesRevisitsAndRefusesARepeatedFloor) {
   const int closure = LoopClosureCandidate(cands, o.retrieval.verification);
   ASSERT_GE(closure, 0);
   for (const Candidate& c : cands) {
-    if (c.verified) EXPECT_LE(c.relative.inliers, cands[closure].relative.inliers);
+    if (c.verified) {
+      EXPECT_LE(c.relative.inliers, cands[closure].relative.inliers);
+    }
   }
   // The paper's verification takes the first candidate that verifies, whichever copy it is.
   o.retrieval.verification = LocalizationOptions{};
@@ -668,7 +670,9 @@ TEST_F(LocalizerFiles, AMaintainedMapAddsViewsRetiresKeyframesAndSavesBoth) {
   for (const Keyframe& k : loc->Keyframes()) {
     EXPECT_EQ(k.retired, is_retired(k.id)) << k.id;
     EXPECT_EQ(k.maintained, k.id >= s.db_images.size()) << k.id;
-    if (!k.maintained) EXPECT_FALSE(k.retired) << "the map's own keyframe " << k.id;
+    if (!k.maintained) {
+      EXPECT_FALSE(k.retired) << "the map's own keyframe " << k.id;
+    }
   }
   size_t from_added = 0;
   for (size_t q = 0; q < s.revisits.size(); ++q) {
