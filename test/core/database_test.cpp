@@ -5,6 +5,7 @@
 #include <atomic>
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <filesystem>
 #include <map>
 #include <random>
@@ -347,6 +348,13 @@ TEST_P(DatabaseScale, BlocksThreadsAndStorageGiveIdenticalAnswers) {
     mapped.set_query_threads(2);
     ExpectSameResults(ref, mapped.Query(q, 20));
     ExpectSameResults(ref, blob.Query(q, 20));
+    // Both scans of a block (every image's cells, or a list of the images voted for), forced.
+    for (const char* dense : {"1", "0"}) {
+      ::setenv("GTBOW_QUERY_DENSE", dense, 1);
+      ExpectSameResults(ref, online.Query(q, 20));
+      ExpectSameResults(ref, mapped.Query(q, 20));
+      ::unsetenv("GTBOW_QUERY_DENSE");
+    }
     ASSERT_FALSE(ref.empty());
     if (n % 2 == 0 && src != 17) {
       EXPECT_EQ(ref[0].image, src);
