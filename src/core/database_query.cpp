@@ -65,6 +65,13 @@ inline bool AnyAbove(const float* a, size_t n, float lo) {
   return any;
 }
 
+// An image's best orientation bin of `bins` (the first of equal ones).
+inline int BestBin(const float* a, int bins) {
+  int best = 0;
+  for (int k = 1; k < bins; ++k) best = a[k] > a[best] ? k : best;
+  return best;
+}
+
 // Per-thread scratch for queries: an accumulator over one block of images x bins (all zero
 // between blocks).
 struct Scratch {
@@ -217,8 +224,8 @@ void ScoreBlocks(const std::vector<Segment<E>>& segs, const QueryPlan& p, uint32
       cur[j] = x;
     }
     // Scores: the best bin of each image with votes. Dense: every vote is positive, so an image
-    // has votes exactly when its best bin is above zero; the same images are offered in
-    // another order, and the top N does not depend on the order.
+    // has votes exactly when its best bin is above zero; images that cannot enter the top N are
+    // not offered, and the top N depends neither on them nor on the order of the offers.
     if (p.dense) {
       // The accumulator is read as one array, 16 cells at a time: only where a cell could enter
       // the top N (above zero, and not below the worst of a full top N) are its images scored.
@@ -232,8 +239,7 @@ void ScoreBlocks(const std::vector<Segment<E>>& segs, const QueryPlan& p, uint32
         for (uint32_t rel = std::max(next, static_cast<uint32_t>(c0 / p.bins));
              static_cast<size_t>(rel) * p.bins < c1; ++rel) {
           const float* a = acc + static_cast<size_t>(rel) * p.bins;
-          int best = 0;
-          for (int k = 1; k < p.bins; ++k) best = a[k] > a[best] ? k : best;
+          const int best = BestBin(a, p.bins);
           if (a[best] > lo) {
             top->Offer({a[best], img0 + rel, p.ov ? best : -1});
             lo = top->EntryBound();
@@ -245,8 +251,7 @@ void ScoreBlocks(const std::vector<Segment<E>>& segs, const QueryPlan& p, uint32
     } else {
       for (uint32_t rel : s.touched) {
         float* a = acc + static_cast<size_t>(rel) * p.bins;
-        int best = 0;
-        for (int k = 1; k < p.bins; ++k) best = a[k] > a[best] ? k : best;
+        const int best = BestBin(a, p.bins);
         top->Offer({a[best], img0 + rel, p.ov ? best : -1});
         std::fill(a, a + p.bins, 0.0f);
         seen[rel] = 0;
