@@ -103,6 +103,7 @@ const std::vector<Field>& Fields() {
       Value("features", "num_features", &R::features, &F::num_features),
       // Shapes no map: a map made without it loads with it.
       Value("features", "query_num_features", &R::features, &F::query_num_features, false),
+      Value("features", "query_escalate", &R::features, &F::query_escalate, false),
       Value("features", "orb_scale_factor", &R::features, &F::orb_scale_factor),
       Value("features", "orb_num_levels", &R::features, &F::orb_num_levels),
       Value("features", "orb_edge_threshold", &R::features, &F::orb_edge_threshold),
@@ -181,6 +182,7 @@ const std::vector<Field>& Fields() {
       Verify("guided_repeat_candidates", &LocalizationOptions::guided_repeat_candidates),
       Verify("guided_repeat_ratio", &LocalizationOptions::guided_repeat_ratio),
       Verify("guided_combined", &LocalizationOptions::guided_combined),
+      Verify("escalate_min_inliers", &LocalizationOptions::escalate_min_inliers),
       VerifyPose("min_inliers", &PoseOptions::min_inliers),
       VerifyPose("inlier_threshold", &PoseOptions::inlier_threshold),
       VerifyPose("max_iterations", &PoseOptions::max_iterations),

@@ -55,6 +55,7 @@ FeatureOptions QueryFeatureOptions(const FeatureOptions& options) {
   FeatureOptions q = options;
   if (q.query_num_features > 0) q.num_features = q.query_num_features;
   q.query_num_features = 0;
+  q.query_escalate = false;
   return q;
 }
 
@@ -64,6 +65,8 @@ void FeatureOptions::Check() const {
   };
   need(num_features > 0, "num_features must be positive");
   need(query_num_features >= 0, "query_num_features must be >= 0 (0: num_features)");
+  need(!query_escalate || query_num_features > num_features,
+       "query_escalate needs query_num_features above num_features");
   need(orb_scale_factor > 1.0f, "orb_scale_factor must be > 1");
   need(orb_num_levels >= 1 && orb_num_levels <= 32, "orb_num_levels must be in 1..32");
   need(orb_edge_threshold >= 0, "orb_edge_threshold must be >= 0");

@@ -394,9 +394,11 @@ Localization Localizer::Localize(const ProcessedImage& image) const {
       return "other image size";
     return Damaged(id);
   };
-  // A sequence query's combined view: without guided matching unless guided_combined.
-  const LocalizationOptions lo =
-      image.combined ? CombinedViewOptions(verification_) : verification_;
+  // A sequence query's combined view: without guided matching unless guided_combined; an
+  // escalating query's first pass without it.
+  const LocalizationOptions lo = image.combined     ? CombinedViewOptions(verification_)
+                                 : image.first_pass ? FirstPassOptions(verification_)
+                                                    : verification_;
   if (lo.guided_repeat_check) {
     // A keyframe as a query (its stored keypoints and descriptors, encoded; QueryKeyframe's),
     // for the repeat check of guided matching; mutex_ is held (shared) throughout.
@@ -416,6 +418,25 @@ Localization Localizer::Localize(const ProcessedImage& image) const {
   const auto results = database_->Query(image.bow, static_cast<size_t>(lo.candidates), true);
   PrefetchPayloads(results, results.size());
   return VerifyCandidates(results, image.bow, map, GeometryOf(image.width, image.height), lo);
+}
+
+Localization Localizer::LocalizeImage(const cv::Mat& gray, ProcessedImage* image,
+                                      bool* escalated) const {
+  ProcessedImage used;
+  const Localization fix = EscalatedFix(
+      escalates(), verification_,
+      [&] {
+        used = Process(gray, ImageUse::kKeyframe);
+        used.first_pass = true;
+        return Localize(used);
+      },
+      [&] {
+        used = Process(gray, ImageUse::kQuery);
+        return Localize(used);
+      },
+      escalated);
+  if (image != nullptr) *image = std::move(used);
+  return fix;
 }
 
 void Localizer::Reset() {

@@ -196,6 +196,9 @@ void LocalizationOptions::Check() const {
   if (guided_repeat_candidates < 1) {
     throw std::invalid_argument("localization: guided_repeat_candidates must be >= 1");
   }
+  if (escalate_min_inliers < 0) {
+    throw std::invalid_argument("localization: escalate_min_inliers must be >= 0");
+  }
   if (guided_seed_inliers < 2) {
     throw std::invalid_argument("localization: guided_seed_inliers must be >= 2");
   }
@@ -676,6 +679,25 @@ LocalizationOptions CombinedViewOptions(const LocalizationOptions& options) {
     o.guided_repeat_check = false;
   }
   return o;
+}
+
+LocalizationOptions FirstPassOptions(const LocalizationOptions& options) {
+  LocalizationOptions o = options;
+  o.guided_radius = 0.0;
+  o.guided_repeat_check = false;
+  return o;
+}
+
+Localization EscalatedFix(bool escalate, const LocalizationOptions& options,
+                          const std::function<Localization()>& first,
+                          const std::function<Localization()>& full, bool* escalated) {
+  if (escalated != nullptr) *escalated = false;
+  if (escalate) {
+    Localization fix = first();
+    if (fix.success && fix.estimate.inliers >= options.escalate_min_inliers) return fix;
+  }
+  if (escalated != nullptr) *escalated = escalate;
+  return full();
 }
 
 PoseEstimate VerifyCandidate(const QueryResult& r, const BowVector& query, const MapAccess& map,

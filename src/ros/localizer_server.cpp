@@ -591,10 +591,15 @@ void LocalizerServer::ProcessImage(const Pending& msg) {
     }
   }
   // Localization (and maintenance) only queries (features.query_num_features); mapping adds
-  // the image.
-  const gtbow::ProcessedImage img =
-      localizer_->Process(floor_image, Localizes(mode) ? gtbow::Localizer::ImageUse::kQuery
-                                                       : gtbow::Localizer::ImageUse::kKeyframe);
+  // the image. Single images in localization mode escalate when the preset says so
+  // (features.query_escalate; Localizer::LocalizeImage): they are processed there.
+  const bool escalating =
+      mode == Mode::kLocalization && sequence_.options().length <= 1 && localizer_->escalates();
+  gtbow::ProcessedImage img;
+  if (!escalating) {
+    img = localizer_->Process(floor_image, Localizes(mode) ? gtbow::Localizer::ImageUse::kQuery
+                                                           : gtbow::Localizer::ImageUse::kKeyframe);
+  }
   std::vector<gtbow::Vec2> inliers;
   std::string caption = "no verified match";
   if (Localizes(mode)) {
@@ -602,7 +607,11 @@ void LocalizerServer::ProcessImage(const Pending& msg) {
     // With the images just before it, related by odometry (core/sequence.h), when kept.
     if (sequence_.options().length > 1) sequence_.Push(img, odom);
     gtbow::Localization fix;
-    if (sequence_.size() > 1) {
+    if (escalating) {
+      bool escalated = false;
+      fix = localizer_->LocalizeImage(floor_image, &img, &escalated);
+      if (escalated) escalated_queries_++;
+    } else if (sequence_.size() > 1) {
       bool combined = false;
       fix = gtbow::SequenceFix(
           sequence_.options(), [&] { return localizer_->Localize(img); },
@@ -812,6 +821,7 @@ void LocalizerServer::Diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat
   stat.add("fixes held (odometry gate)", held_fixes_.load());
   stat.add("relocalizations", relocalizations_.load());
   stat.add("sequence_queries", sequence_queries_.load());
+  stat.add("escalated queries (features.query_escalate)", escalated_queries_.load());
   stat.add("maintenance: views added", views_added_.load());
   stat.add("maintenance: keyframes retired", keyframes_retired_.load());
   stat.add("images rectified", rectified_.load());

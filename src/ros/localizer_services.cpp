@@ -85,8 +85,8 @@ bool LocalizerServer::OnLocalize(ground_texture_bow::Localize::Request& req,
                                  ground_texture_bow::Localize::Response& res) {
   res.status = Serve("localize", false, [&] {
     RequireScale();
-    const gtbow::Localization fix = localizer_->Localize(
-        localizer_->Process(ToFloorImage(req.image), gtbow::Localizer::ImageUse::kQuery));
+    // As the localization mode localizes a single image (escalating when the preset says so).
+    const gtbow::Localization fix = localizer_->LocalizeImage(ToFloorImage(req.image));
     res.localized = fix.success;
     if (!fix.success) return MakeStatus(Status::NOT_FOUND, fix.reason);
     res.pose =

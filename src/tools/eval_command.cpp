@@ -336,11 +336,22 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
   SequenceOptions sequence;
   sequence.length = a.sequence;
   sequence.single_first = !a.sequence_always;
+  // An escalating preset (features.query_escalate) localizes a single image as the node's
+  // localization mode does (Localizer::LocalizeImage): extracted as a keyframe first, with
+  // query_num_features only when that gives no fix. Not with --sequence or --maintain, where the
+  // node takes query_num_features keypoints at once (sequences, the maintenance mode).
+  const bool escalate = c.features.query_escalate && a.sequence <= 1 && a.maintain.empty();
+  std::vector<std::vector<BowVector>> q_first_all;  // escalate: each query as a keyframe
   for (const auto& split : splits) {
     ImageSource q_src = ImageSource::FromDataset(a.dataset, split);
     q_src.Subsample(a.max_queries);
     std::vector<ImageFeatures> q_feats =
         ExtractAllCached(q_src, QueryFeatureOptions(c.features), cache, a.threads, !a.quiet);
+    if (escalate) {
+      q_first_all.push_back(
+          EncodeAll(enc, ExtractAllCached(q_src, c.features, cache, a.threads, !a.quiet), a.threads,
+                    !a.quiet));
+    }
     if (a.sequence > 1) {
       q_single_all.push_back(EncodeAll(enc, q_feats, a.threads, !a.quiet));
       q_trails.push_back(ReadTrails(a, ds, split, q_src, QueryFeatureOptions(c.features), cache));
@@ -434,6 +445,7 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
   const LocalizationOptions& lo = c.verification;
   // A sequence query's combined view is verified as the node's Localizer verifies one.
   const LocalizationOptions lo_view = a.sequence > 1 ? CombinedViewOptions(lo) : lo;
+  const LocalizationOptions lo_first = FirstPassOptions(lo);  // escalate: the first pass
   if (!a.maintain.empty()) {
     pr.maintenance = Maintain(a, c, enc, ds, geo, map, &db, &db_feats, &stored, &db_pose, &map_pose,
                               &db_names, &db_live);
@@ -456,6 +468,7 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
       std::vector<double> disjoint;  // top-10 scores of false results not overlapping at all
       std::vector<QueryResult> ranking;
       Localization loc;
+      bool escalated = false;  // escalate: the full pass gave loc
       Pose2D truth;
       size_t verified = 0, wrong = 0;  // over all top-K candidates
       std::string rows;                // verifications.csv
@@ -474,16 +487,28 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
       // own (with the consensus, when on), to count wrong poses among all of them.
       const auto candidates = db.Query(q_vecs[qi], static_cast<size_t>(lo.candidates), true);
       // A sequence query: the query alone first (--sequence-always: the combined view only),
-      // as the node does (SequenceFix).
+      // as the node does (SequenceFix). An escalating query: the image as a keyframe first
+      // (EscalatedFix). Their candidates are the first pass's.
       std::vector<QueryResult> single_candidates;
+      const BowVector* first_vec = nullptr;
+      const LocalizationOptions* first_lo = &lo;
       if (a.sequence > 1) {
         const BowVector& own = q_single_all[si][qi];
+        first_vec = &own;
         if (sequence.single_first) {
           single_candidates = db.Query(own, static_cast<size_t>(lo.candidates), true);
         }
         p.loc = SequenceFix(
             sequence, [&] { return VerifyCandidates(single_candidates, own, map, geo, lo); },
             [&] { return VerifyCandidates(candidates, q_vecs[qi], map, geo, lo_view); }, nullptr);
+      } else if (escalate) {
+        const BowVector& own = q_first_all[si][qi];
+        first_vec = &own;
+        first_lo = &lo_first;
+        single_candidates = db.Query(own, static_cast<size_t>(lo.candidates), true);
+        p.loc = EscalatedFix(
+            true, lo, [&] { return VerifyCandidates(single_candidates, own, map, geo, lo_first); },
+            [&] { return VerifyCandidates(candidates, q_vecs[qi], map, geo, lo); }, &p.escalated);
       } else {
         p.loc = VerifyCandidates(candidates, q_vecs[qi], map, geo, lo);
       }
@@ -511,9 +536,9 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
       for (size_t k = 0; k < each.size(); ++k) {
         if (each[k].success) record(k, each[k], candidates);
       }
-      if (!single_candidates.empty()) {  // the query alone's candidates count too
+      if (!single_candidates.empty()) {  // the first pass's candidates count too
         const std::vector<PoseEstimate> own =
-            VerifyEach(single_candidates, q_single_all[si][qi], map, geo, lo);
+            VerifyEach(single_candidates, *first_vec, map, geo, *first_lo);
         for (size_t k = 0; k < own.size(); ++k) {
           if (own[k].success) record(k, own[k], single_candidates);
         }
@@ -542,6 +567,7 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
       const PerQuery& p = per[qi];
       sr.verified_poses += p.verified;
       sr.wrong_verified_poses += p.wrong;
+      sr.escalated += p.escalated ? 1 : 0;
       *verifications += p.rows;
       if (p.counted && !p.ranking.empty()) {
         top1.push_back({p.ranking[0].score, IsRelevant(p.truth, db_pose[p.ranking[0].image], geo)});
@@ -616,12 +642,18 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
   // transform stage combines them with the query's before encoding.
   // With --sequence the stages add up as SequenceFix runs them: the query alone first (unless
   // --sequence-always), then, when it gives no fix, the combined view.
+  // An escalating query (escalate) adds up both passes when the first gives no fix.
   auto time_query = [&](const cv::Mat& img, size_t split, size_t qi, Samples* out) {
     using Clock = std::chrono::steady_clock;
     const auto t0 = Clock::now();
-    const ImageFeatures f = fxq.Extract(img);
-    const auto t1 = Clock::now();
-    Clock::duration transform{}, query{}, pose{};
+    Clock::duration extraction{}, transform{}, query{};
+    auto extract = [&](const FeatureExtractor& x) {
+      const auto e0 = Clock::now();
+      ImageFeatures r = x.Extract(img);
+      extraction += Clock::now() - e0;
+      return r;
+    };
+    ImageFeatures f;
     BowVector v;
     auto localize = [&](auto&& encode, const LocalizationOptions& with) {
       const auto a0 = Clock::now();
@@ -629,37 +661,47 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
       const auto a1 = Clock::now();
       const auto results = db.Query(v, static_cast<size_t>(with.candidates), true);
       const auto a2 = Clock::now();
-      Localization loc = VerifyCandidates(results, v, map, geo, with);
-      const auto a3 = Clock::now();
       transform += a1 - a0;
-      query += a2 - a1;
-      pose += a3 - a2;
-      return loc;
+      query += a2 - a1;  // the pose is what remains of the end to end
+      return VerifyCandidates(results, v, map, geo, with);
     };
     auto alone = [&] { return localize([&] { return enc.Encode(f); }, lo); };
-    if (a.sequence > 1) {
-      (void)SequenceFix(
-          sequence, alone,
+    if (escalate) {
+      (void)EscalatedFix(
+          true, lo,
           [&] {
-            return localize([&] { return enc.Encode(q_trails[split].Combine(f, qi, geo)); },
-                            lo_view);
+            const ImageFeatures first = extract(fx);
+            return localize([&] { return enc.Encode(first); }, lo_first);
+          },
+          [&] {
+            f = extract(fxq);
+            return alone();
           },
           nullptr);
     } else {
-      (void)alone();
+      f = extract(fxq);
+      if (a.sequence > 1) {
+        (void)SequenceFix(
+            sequence, alone,
+            [&] {
+              return localize([&] { return enc.Encode(q_trails[split].Combine(f, qi, geo)); },
+                              lo_view);
+            },
+            nullptr);
+      } else {
+        (void)alone();
+      }
     }
     const auto t4_query = Clock::now();
-    const auto t2 = t1 + transform, t3 = t2 + query;
-    (void)pose;
     const BowVector keyframe = query_differs ? enc.Encode(fx.Extract(img)) : BowVector();
     const auto t4 = std::chrono::steady_clock::now();
     const uint32_t id = db.Add(query_differs ? keyframe : v);
     const auto t5 = std::chrono::steady_clock::now();
     db.Remove(id);
-    out->ex.push_back(Ms(t1 - t0));
-    out->tr.push_back(Ms(t2 - t1));
-    out->qu.push_back(Ms(t3 - t2));
-    out->po.push_back(Ms(t4_query - t3));
+    out->ex.push_back(Ms(extraction));
+    out->tr.push_back(Ms(transform));
+    out->qu.push_back(Ms(query));
+    out->po.push_back(Ms(t4_query - t0 - extraction - transform - query));
     out->in.push_back(Ms(t5 - t4));
     out->to.push_back(Ms(t4_query - t0));
   };

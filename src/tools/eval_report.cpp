@@ -135,6 +135,7 @@ std::string ToJson(const EvalArgs& a, const Dataset& ds, const std::vector<Prese
       j.Key("queries").Int(static_cast<long long>(s.queries));
       j.Key("queries_with_relevant").Int(static_cast<long long>(s.counted));
       j.Key("queries_without_relevant").Int(static_cast<long long>(s.no_relevant));
+      j.Key("escalated_queries").Int(static_cast<long long>(s.escalated));
       j.Key("map_at_1000").Num(s.map);
       j.Key("recall_at_n").Nums(s.recall);
       j.Key("separation").Open('{').Key("threshold").Num(s.separation.threshold);

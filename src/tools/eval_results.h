@@ -81,6 +81,9 @@ struct SplitResult {
   std::string name;
   double day = NAN;
   size_t queries = 0, counted = 0, no_relevant = 0;
+  // Queries an escalating preset (features.query_escalate) localized with its full pass: the
+  // first pass, as a keyframe is extracted, gave no fix.
+  size_t escalated = 0;
   double map = 0;
   std::vector<double> recall;  // at kRecallN
   Separation separation;

@@ -137,8 +137,7 @@ void Localize(const LocalizeArgs& a) {
   std::vector<double> errors;
   ProgressBar bar("localize", names.size(), !a.quiet);
   for (const std::string& n : names) {
-    const Localization fix =
-        loc->Localize(loc->Process(ds.LoadGray(n), Localizer::ImageUse::kQuery));
+    const Localization fix = loc->LocalizeImage(ds.LoadGray(n));
     char line[256];
     if (!fix.success) {
       csv += n + ",0,,,,,,,\n";

@@ -1048,6 +1048,100 @@ TEST(Localizer, QueriesTakeMoreKeypointsThanKeyframes) {
   EXPECT_EQ(FormatRetrievalConfig(o.retrieval), FormatRetrievalConfig(Options().retrieval));
 }
 
+// Issue 28: with query_escalate an image is localized first as a keyframe is extracted (without
+// guided matching), and with query_num_features keypoints only when that gives no fix
+// (EscalatedFix), as LocalizeImage does for the node and the localize service.
+TEST(Localizer, EscalatingQueriesTakeMoreKeypointsOnlyWhenTheFirstPassFails) {
+  const Scene& s = TheScene();
+  LocalizerOptions o = Options();
+  o.retrieval.features.query_num_features = 500;
+  o.retrieval.verification.matches = MatchSource::kDescriptors;
+  o.retrieval.verification.guided_radius = 8.0;
+  Localizer plain(s.vocabulary, "test.gtvoc", o);
+  o.retrieval.features.query_escalate = true;
+  Localizer loc(s.vocabulary, "test.gtvoc", o);
+  ASSERT_TRUE(loc.escalates());
+  ASSERT_FALSE(plain.escalates());
+  for (size_t i = 0; i < s.db_images.size(); ++i) {
+    loc.Add(loc.Process(s.db_images[i]), static_cast<int64_t>(i), s.db_poses[i]);
+    plain.Add(plain.Process(s.db_images[i]), static_cast<int64_t>(i), s.db_poses[i]);
+  }
+  for (size_t q = 0; q < s.revisits.size(); ++q) {
+    ProcessedImage used;
+    bool escalated = true;
+    const Localization fix = loc.LocalizeImage(s.revisits[q], &used, &escalated);
+    ASSERT_TRUE(fix.success) << "place " << q << ": " << fix.reason;
+    EXPECT_FALSE(escalated) << "place " << q;
+    EXPECT_TRUE(used.first_pass);
+    EXPECT_LE(used.features.size(), 250u);
+    // The first pass is the image processed as a keyframe, verified with FirstPassOptions.
+    ProcessedImage first = loc.Process(s.revisits[q]);
+    first.first_pass = true;
+    const Localization same = loc.Localize(first);
+    ASSERT_TRUE(same.success);
+    EXPECT_EQ(same.image, fix.image);
+    EXPECT_EQ(same.estimate.inliers, fix.estimate.inliers);
+    const Pose2D& t = s.revisit_poses[q];
+    EXPECT_LT(1000 * std::hypot(fix.estimate.floor_from_query.x - t.x,
+                                fix.estimate.floor_from_query.y - t.y),
+              4.8);
+    // Without query_escalate: the query's 500 keypoints at once.
+    bool plain_escalated = true;
+    ProcessedImage plain_used;
+    const Localization full = plain.LocalizeImage(s.revisits[q], &plain_used, &plain_escalated);
+    const Localization direct =
+        plain.Localize(plain.Process(s.revisits[q], Localizer::ImageUse::kQuery));
+    EXPECT_FALSE(plain_escalated);
+    EXPECT_FALSE(plain_used.first_pass);
+    EXPECT_GT(plain_used.features.size(), 400u);
+    ASSERT_TRUE(full.success && direct.success);
+    EXPECT_EQ(full.image, direct.image);
+    EXPECT_EQ(full.estimate.inliers, direct.estimate.inliers);
+  }
+  // An image that the first pass cannot localize goes on to the full pass.
+  const cv::Mat blank(s.revisits[0].size(), CV_8UC1, cv::Scalar(128));
+  ProcessedImage used;
+  bool escalated = false;
+  const Localization none = loc.LocalizeImage(blank, &used, &escalated);
+  EXPECT_FALSE(none.success);
+  EXPECT_TRUE(escalated);
+  EXPECT_FALSE(used.first_pass);
+  // EscalatedFix: the full pass runs only when the first gives no fix.
+  int firsts = 0, fulls = 0;
+  auto first = [&](bool ok) {
+    return [&firsts, ok] {
+      ++firsts;
+      Localization l;
+      l.success = ok;
+      return l;
+    };
+  };
+  auto full = [&] {
+    ++fulls;
+    Localization l;
+    l.success = true;
+    l.image = 7;
+    return l;
+  };
+  LocalizationOptions lo;
+  EXPECT_FALSE(EscalatedFix(true, lo, first(true), full, &escalated).image == 7);
+  EXPECT_FALSE(escalated);
+  EXPECT_EQ(EscalatedFix(true, lo, first(false), full, &escalated).image, 7u);
+  EXPECT_TRUE(escalated);
+  EXPECT_EQ(EscalatedFix(false, lo, first(true), full, &escalated).image, 7u);
+  EXPECT_FALSE(escalated);
+  // A first-pass fix with fewer than escalate_min_inliers goes on to the full pass.
+  lo.escalate_min_inliers = 16;
+  EXPECT_EQ(EscalatedFix(true, lo, first(true), full, &escalated).image, 7u);
+  EXPECT_TRUE(escalated);
+  EXPECT_EQ(firsts, 3);
+  EXPECT_EQ(fulls, 3);
+  EXPECT_EQ(FirstPassOptions(o.retrieval.verification).guided_radius, 0.0);
+  // It needs more query keypoints than a keyframe has.
+  o.retrieval.features.query_num_features = 250;
+  EXPECT_THROW(o.retrieval.features.Check(), std::invalid_argument);
+}
+
 // Sequence queries: an image mostly hidden (glare, a lens smudge: not the floor) localizes with
 // the two images before it, combined through odometry that is 0.2 mm and 0.1 degree off.
 TEST(Localizer, SequenceQueriesLocalizeAHiddenImageWithTheImagesBeforeIt) {

@@ -122,6 +122,9 @@ struct ProcessedImage {
   int width = 0;
   int height = 0;
   bool combined = false;  // a sequence query's combined view (Combine; CombinedViewOptions)
+  // An escalating query's first pass (LocalizeImage; FirstPassOptions): extracted as a keyframe
+  // is, verified without guided matching.
+  bool first_pass = false;
 };
 
 // A retrieved keyframe. With verification, `relative` holds match_from_query: the query
@@ -195,6 +198,18 @@ class Localizer {
   // a pose, until one gives a pose with enough inliers (VerifyCandidates, as gtbow eval does).
   // The fix is estimate.floor_from_query, in the map frame; image is the keyframe.
   Localization Localize(const ProcessedImage& image) const;
+
+  // Global localization of an image that is only localized (the node's localization mode with
+  // single images, the localize service, gtbow localize): Process(gray, kQuery) and Localize, or
+  // with features.query_escalate the image processed as a keyframe and localized as a first pass
+  // (without guided matching), and only when that gives no fix processed as a query and
+  // localized in full (EscalatedFix). *image (if given) receives the image the returned fix,
+  // or failure, is the localization of; *escalated whether that was the full pass. Throws as
+  // Process does.
+  Localization LocalizeImage(const cv::Mat& gray, ProcessedImage* image = nullptr,
+                             bool* escalated = nullptr) const;
+  // Whether LocalizeImage escalates (features.query_escalate).
+  bool escalates() const { return options_.retrieval.features.query_escalate; }
 
   // A sequence query (sequence.h): images[0] is the newest image, the others the robot's images
   // just before it, poses[i] each one's pose in a common odometry frame (metres, radians, the

@@ -161,6 +161,11 @@ struct LocalizationOptions {
   // guided matching of combined views published two copies of a sand floor turned 180 degrees,
   // where the check's copy covered another part of the larger view.
   bool guided_combined = false;
+  // An escalating query's first pass (FeatureOptions::query_escalate; EscalatedFix): its fix
+  // stands only with at least this many inliers; a weaker one goes on to the full pass, as no
+  // fix does (0: any fix stands). On the held-out photographs the first pass's weak fixes
+  // included a copy of a floor turned 180 degrees (10 inliers; docs/RESULTS.md).
+  int escalate_min_inliers = 0;
 
   void Check() const;
 };
@@ -181,6 +186,19 @@ struct Localization {
   PoseEstimate estimate;
   std::vector<Vec2> inlier_pixels;  // query pixels of the inlier matches (for overlays)
 };
+
+// The options that verify the first pass of an escalating query (FeatureOptions::query_escalate):
+// `options` without guided matching, which the full pass keeps.
+LocalizationOptions FirstPassOptions(const LocalizationOptions& options);
+
+// An escalating query's fix (what the node, the localize service, gtbow localize and gtbow eval
+// all do): with `escalate`, the first pass's fix when it has one with at least
+// options.escalate_min_inliers inliers, else the full pass's; without, the full pass's. `full`
+// runs only when needed. *escalated (if given) says whether the fix, or the failure, is the full
+// pass's.
+Localization EscalatedFix(bool escalate, const LocalizationOptions& options,
+                          const std::function<Localization()>& first,
+                          const std::function<Localization()>& full, bool* escalated);
 
 // Where the localizer finds a database image's keypoints and pose.
 struct MapAccess {
