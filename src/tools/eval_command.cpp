@@ -539,8 +539,11 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
       if (!single_candidates.empty()) {  // the first pass's candidates count too
         const std::vector<PoseEstimate> own =
             VerifyEach(single_candidates, *first_vec, map, geo, *first_lo);
+        // An escalating query's first pass stands only with escalate_min_inliers: a weaker pose
+        // is never published (EscalatedFix), so it is not counted as verified.
+        const int stands = escalate ? lo.escalate_min_inliers : 0;
         for (size_t k = 0; k < own.size(); ++k) {
-          if (own[k].success) record(k, own[k], single_candidates);
+          if (own[k].success && own[k].inliers >= stands) record(k, own[k], single_candidates);
         }
       }
       if (num_rel > 0) {
