@@ -338,8 +338,9 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
   sequence.single_first = !a.sequence_always;
   // An escalating preset (features.query_escalate) localizes a single image as the node's
   // localization mode does (Localizer::LocalizeImage): extracted as a keyframe first, with
-  // query_num_features only when that gives no fix. Not with --sequence or --maintain, where the
-  // node takes query_num_features keypoints at once (sequences, the maintenance mode).
+  // query_num_features only when that gives no fix with escalate_min_inliers inliers. Not with
+  // --sequence or --maintain, where the node takes query_num_features keypoints at once (sequences,
+  // the maintenance mode).
   const bool escalate = c.features.query_escalate && a.sequence <= 1 && a.maintain.empty();
   std::vector<std::vector<BowVector>> q_first_all;  // escalate: each query as a keyframe
   for (const auto& split : splits) {
@@ -631,8 +632,9 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
   std::mt19937_64 rng(7);
   std::shuffle(pool.begin(), pool.end(), rng);
   pool.resize(std::min(pool.size(), a.timing_queries));
-  // A localization query is extracted with the query options (query_num_features); the
-  // insertion is timed with the image extracted as a keyframe.
+  // A localization query is extracted with the query options (query_num_features; an
+  // escalating preset's first pass as a keyframe); the insertion is timed with the image
+  // extracted as a keyframe.
   const FeatureExtractor fx(c.features), fxq(QueryFeatureOptions(c.features));
   // A keyframe is one image extracted as a keyframe: with --sequence a query is not one.
   const bool query_differs =

@@ -100,6 +100,9 @@ std::string ToJson(const EvalArgs& a, const Dataset& ds, const std::vector<Prese
     j.Key("name").Str(pr.name).Key("file").Str(pr.file).Key("vocabulary").Str(pr.vocab_desc);
     j.Key("table_i_row").Str(pr.table_row);
     j.Key("configuration").Str(FormatRetrievalConfig(pr.config));
+    // Query options a map does not record (FormatRetrievalConfig leaves them out).
+    j.Key("query_num_features").Int(pr.config.features.query_num_features);
+    j.Key("query_escalate").Bool(pr.config.features.query_escalate);
     j.Key("verification").Str(FormatVerificationOptions(pr.config.verification));
     j.Key("localization_candidates").Int(pr.config.verification.candidates);
     j.Key("database_images").Int(static_cast<long long>(pr.db_images));

@@ -82,7 +82,7 @@ struct SplitResult {
   double day = NAN;
   size_t queries = 0, counted = 0, no_relevant = 0;
   // Queries an escalating preset (features.query_escalate) localized with its full pass: the
-  // first pass, as a keyframe is extracted, gave no fix.
+  // first pass, as a keyframe is extracted, gave no fix with escalate_min_inliers inliers.
   size_t escalated = 0;
   double map = 0;
   std::vector<double> recall;  // at kRecallN

@@ -1049,7 +1049,8 @@ TEST(Localizer, QueriesTakeMoreKeypointsThanKeyframes) {
 }
 
 // Issue 28: with query_escalate an image is localized first as a keyframe is extracted (without
-// guided matching), and with query_num_features keypoints only when that gives no fix
+// guided matching), and with query_num_features keypoints only when that gives no fix with
+// escalate_min_inliers inliers
 // (EscalatedFix), as LocalizeImage does for the node and the localize service.
 TEST(Localizer, EscalatingQueriesTakeMoreKeypointsOnlyWhenTheFirstPassFails) {
   const Scene& s = TheScene();
@@ -1098,6 +1099,28 @@ TEST(Localizer, EscalatingQueriesTakeMoreKeypointsOnlyWhenTheFirstPassFails) {
     EXPECT_EQ(full.image, direct.image);
     EXPECT_EQ(full.estimate.inliers, direct.estimate.inliers);
   }
+  // A first-pass fix with fewer than escalate_min_inliers goes on to the full pass, which gives
+  // the query's own fix.
+  o.retrieval.verification.escalate_min_inliers = 100000;
+  Localizer strict(s.vocabulary, "test.gtvoc", o);
+  for (size_t i = 0; i < s.db_images.size(); ++i) {
+    strict.Add(strict.Process(s.db_images[i]), static_cast<int64_t>(i), s.db_poses[i]);
+  }
+  {
+    ProcessedImage used;
+    bool escalated = false;
+    const Localization fix = strict.LocalizeImage(s.revisits[0], &used, &escalated);
+    const Localization full =
+        strict.Localize(strict.Process(s.revisits[0], Localizer::ImageUse::kQuery));
+    ASSERT_TRUE(fix.success && full.success) << fix.reason;
+    EXPECT_TRUE(escalated);
+    EXPECT_FALSE(used.first_pass);
+    EXPECT_GT(used.features.size(), 400u);
+    EXPECT_EQ(fix.image, full.image);
+    EXPECT_EQ(fix.estimate.inliers, full.estimate.inliers);
+  }
+  // Not recorded in the map: a map saved without them loads with them.
+  EXPECT_EQ(FormatRetrievalConfig(o.retrieval), FormatRetrievalConfig(plain.options().retrieval));
   // An image that the first pass cannot localize goes on to the full pass.
   const cv::Mat blank(s.revisits[0].size(), CV_8UC1, cv::Scalar(128));
   ProcessedImage used;

@@ -44,11 +44,11 @@ struct FeatureOptions {
   int query_num_features = 0;
   // An image that is only localized (the node's localization mode, the localize service) is
   // first extracted as a keyframe is (num_features keypoints) and verified without guided
-  // matching; only when that gives no fix is it extracted again with query_num_features and
-  // localized in full (EscalatedFix, pose.h). Most images of a floor that has not changed
-  // localize in the first pass, at a keyframe's cost. Needs query_num_features above
-  // num_features. Not used for sequence queries, the maintenance mode or the candidate
-  // services, which take query_num_features keypoints at once. Not recorded in maps.
+  // matching; only when that gives no fix with verification.escalate_min_inliers inliers is it
+  // extracted again with query_num_features and localized in full (EscalatedFix, pose.h). Most
+  // images of a floor that has not changed localize in the first pass, at a keyframe's cost. Needs
+  // query_num_features above num_features. Not used for sequence queries, the maintenance mode or
+  // the candidate services, which take query_num_features keypoints at once. Not recorded in maps.
   bool query_escalate = false;
   // ORB (cv::ORB); the defaults are the paper's (8 levels at scale 1.2).
   float orb_scale_factor = 1.2f;  // pyramid scale step

@@ -202,10 +202,11 @@ class Localizer {
   // Global localization of an image that is only localized (the node's localization mode with
   // single images, the localize service, gtbow localize): Process(gray, kQuery) and Localize, or
   // with features.query_escalate the image processed as a keyframe and localized as a first pass
-  // (without guided matching), and only when that gives no fix processed as a query and
-  // localized in full (EscalatedFix). *image (if given) receives the image the returned fix,
-  // or failure, is the localization of; *escalated whether that was the full pass. Throws as
-  // Process does.
+  // (without guided matching), and only when that gives no fix with escalate_min_inliers
+  // inliers processed as a query and localized in full (EscalatedFix). gtbow localize takes a
+  // map's recorded options, which hold neither query_num_features nor query_escalate. *image (if
+  // given) receives the image the returned fix, or failure, is the localization of; *escalated
+  // whether that was the full pass. Throws as Process does.
   Localization LocalizeImage(const cv::Mat& gray, ProcessedImage* image = nullptr,
                              bool* escalated = nullptr) const;
   // Whether LocalizeImage escalates (features.query_escalate).

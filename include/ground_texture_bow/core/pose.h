@@ -191,11 +191,10 @@ struct Localization {
 // `options` without guided matching, which the full pass keeps.
 LocalizationOptions FirstPassOptions(const LocalizationOptions& options);
 
-// An escalating query's fix (what the node, the localize service, gtbow localize and gtbow eval
-// all do): with `escalate`, the first pass's fix when it has one with at least
-// options.escalate_min_inliers inliers, else the full pass's; without, the full pass's. `full`
-// runs only when needed. *escalated (if given) says whether the fix, or the failure, is the full
-// pass's.
+// An escalating query's fix (what the node, the localize service and gtbow eval all do): with
+// `escalate`, the first pass's fix when it has one with at least options.escalate_min_inliers
+// inliers, else the full pass's; without, the full pass's. `full` runs only when needed. *escalated
+// (if given) says whether the fix, or the failure, is the full pass's.
 Localization EscalatedFix(bool escalate, const LocalizationOptions& options,
                           const std::function<Localization()>& first,
                           const std::function<Localization()>& full, bool* escalated);
