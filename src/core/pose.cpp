@@ -670,22 +670,22 @@ std::string RepeatsElsewhere(const BowVector& query, const PoseEstimate& est, ui
   return std::string();
 }
 
-}  // namespace
-
-LocalizationOptions CombinedViewOptions(const LocalizationOptions& options) {
-  LocalizationOptions o = options;
-  if (!o.guided_combined) {
-    o.guided_radius = 0.0;
-    o.guided_repeat_check = false;
-  }
-  return o;
-}
-
-LocalizationOptions FirstPassOptions(const LocalizationOptions& options) {
+// `options` without guided matching and its repeat check.
+LocalizationOptions WithoutGuidedMatching(const LocalizationOptions& options) {
   LocalizationOptions o = options;
   o.guided_radius = 0.0;
   o.guided_repeat_check = false;
   return o;
+}
+
+}  // namespace
+
+LocalizationOptions CombinedViewOptions(const LocalizationOptions& options) {
+  return options.guided_combined ? options : WithoutGuidedMatching(options);
+}
+
+LocalizationOptions FirstPassOptions(const LocalizationOptions& options) {
+  return WithoutGuidedMatching(options);
 }
 
 Localization EscalatedFix(bool escalate, const LocalizationOptions& options,
