@@ -104,6 +104,7 @@ const std::vector<Field>& Fields() {
       // Shapes no map: a map made without it loads with it.
       Value("features", "query_num_features", &R::features, &F::query_num_features, false),
       Value("features", "query_escalate", &R::features, &F::query_escalate, false),
+      Value("features", "query_escalate_backoff", &R::features, &F::query_escalate_backoff, false),
       Value("features", "orb_scale_factor", &R::features, &F::orb_scale_factor),
       Value("features", "orb_num_levels", &R::features, &F::orb_num_levels),
       Value("features", "orb_edge_threshold", &R::features, &F::orb_edge_threshold),

@@ -56,6 +56,7 @@ FeatureOptions QueryFeatureOptions(const FeatureOptions& options) {
   if (q.query_num_features > 0) q.num_features = q.query_num_features;
   q.query_num_features = 0;
   q.query_escalate = false;
+  q.query_escalate_backoff = 0;
   return q;
 }
 
@@ -67,6 +68,7 @@ void FeatureOptions::Check() const {
   need(query_num_features >= 0, "query_num_features must be >= 0 (0: num_features)");
   need(!query_escalate || query_num_features > num_features,
        "query_escalate needs query_num_features above num_features");
+  need(query_escalate_backoff >= 0, "query_escalate_backoff must be >= 0 (0: off)");
   need(orb_scale_factor > 1.0f, "orb_scale_factor must be > 1");
   need(orb_num_levels >= 1 && orb_num_levels <= 32, "orb_num_levels must be in 1..32");
   need(orb_edge_threshold >= 0, "orb_edge_threshold must be >= 0");

@@ -420,8 +420,8 @@ Localization Localizer::Localize(const ProcessedImage& image) const {
   return VerifyCandidates(results, image.bow, map, GeometryOf(image.width, image.height), lo);
 }
 
-Localization Localizer::LocalizeImage(const cv::Mat& gray, ProcessedImage* image,
-                                      bool* escalated) const {
+Localization Localizer::LocalizeImage(const cv::Mat& gray, ProcessedImage* image, bool* escalated,
+                                      EscalationBackoff* backoff) const {
   ProcessedImage used;
   const Localization fix = EscalatedFix(
       escalates(), verification_,
@@ -434,7 +434,7 @@ Localization Localizer::LocalizeImage(const cv::Mat& gray, ProcessedImage* image
         used = Process(gray, ImageUse::kQuery);
         return Localize(used);
       },
-      escalated);
+      escalated, backoff);
   if (image != nullptr) *image = std::move(used);
   return fix;
 }

@@ -688,13 +688,36 @@ LocalizationOptions FirstPassOptions(const LocalizationOptions& options) {
   return WithoutGuidedMatching(options);
 }
 
+EscalationBackoff::EscalationBackoff(int max_skip) : max_skip_(max_skip) {
+  if (max_skip < 0) throw std::invalid_argument("EscalationBackoff: max_skip must be >= 0");
+}
+
+bool EscalationBackoff::TryFirstPass() {
+  if (left_ == 0) return true;
+  --left_;
+  ++skipped_;
+  return false;
+}
+
+void EscalationBackoff::Record(bool stood) {
+  if (stood) {
+    failures_ = 0;
+    return;
+  }
+  failures_ = std::min(failures_ + 1, 30);
+  left_ = static_cast<int>(std::min<int64_t>(max_skip_, (int64_t{1} << failures_) - 1));
+}
+
 Localization EscalatedFix(bool escalate, const LocalizationOptions& options,
                           const std::function<Localization()>& first,
-                          const std::function<Localization()>& full, bool* escalated) {
+                          const std::function<Localization()>& full, bool* escalated,
+                          EscalationBackoff* backoff) {
   if (escalated != nullptr) *escalated = false;
-  if (escalate) {
+  if (escalate && (backoff == nullptr || backoff->TryFirstPass())) {
     Localization fix = first();
-    if (fix.success && fix.estimate.inliers >= options.escalate_min_inliers) return fix;
+    const bool stands = fix.success && fix.estimate.inliers >= options.escalate_min_inliers;
+    if (backoff != nullptr) backoff->Record(stands);
+    if (stands) return fix;
   }
   if (escalated != nullptr) *escalated = escalate;
   return full();

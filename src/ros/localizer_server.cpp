@@ -34,6 +34,7 @@ LocalizerServer::LocalizerServer(ros::NodeHandle nh, ros::NodeHandle pnh,
   if (vocab_path.empty()) vocab_path = gtbow::Localizer::VocabularyPathOf(options_.map);
   std::shared_ptr<gtbow::Vocabulary> vocab = gtbow::Vocabulary::Load(vocab_path);
   localizer_ = std::make_unique<gtbow::Localizer>(std::move(vocab), vocab_path, options_.core);
+  backoff_ = localizer_->NewBackoff();
   if (options_.meters_per_pixel > 0) {
     scale_known_ = true;
     scale_source_ = "~meters_per_pixel";
@@ -609,8 +610,13 @@ void LocalizerServer::ProcessImage(const Pending& msg) {
     gtbow::Localization fix;
     if (escalating) {
       bool escalated = false;
-      fix = localizer_->LocalizeImage(floor_image, &img, &escalated);
-      if (escalated) escalated_queries_++;
+      const size_t skipped = backoff_.skipped();
+      fix = localizer_->LocalizeImage(floor_image, &img, &escalated, &backoff_);
+      if (backoff_.skipped() != skipped) {
+        first_passes_skipped_++;  // straight to the full pass (the backoff)
+      } else if (escalated) {
+        escalated_queries_++;
+      }
     } else if (sequence_.size() > 1) {
       bool combined = false;
       fix = gtbow::SequenceFix(
@@ -822,6 +828,7 @@ void LocalizerServer::Diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat
   stat.add("relocalizations", relocalizations_.load());
   stat.add("sequence_queries", sequence_queries_.load());
   stat.add("escalated queries (features.query_escalate)", escalated_queries_.load());
+  stat.add("first passes skipped (features.query_escalate_backoff)", first_passes_skipped_.load());
   stat.add("maintenance: views added", views_added_.load());
   stat.add("maintenance: keyframes retired", keyframes_retired_.load());
   stat.add("images rectified", rectified_.load());

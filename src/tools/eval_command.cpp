@@ -469,7 +469,9 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
       std::vector<double> disjoint;  // top-10 scores of false results not overlapping at all
       std::vector<QueryResult> ranking;
       Localization loc;
-      bool escalated = false;  // escalate: the full pass gave loc
+      bool escalated = false;    // escalate: the full pass gave loc
+      bool skipped = false;      // escalate: the backoff sent it straight to the full pass
+      Localization first, full;  // escalate: each pass's own fix (the backoff chooses, below)
       Pose2D truth;
       size_t verified = 0, wrong = 0;  // over all top-K candidates
       std::string rows;                // verifications.csv
@@ -507,9 +509,10 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
         first_vec = &own;
         first_lo = &lo_first;
         single_candidates = db.Query(own, static_cast<size_t>(lo.candidates), true);
-        p.loc = EscalatedFix(
-            true, lo, [&] { return VerifyCandidates(single_candidates, own, map, geo, lo_first); },
-            [&] { return VerifyCandidates(candidates, q_vecs[qi], map, geo, lo); }, &p.escalated);
+        // Both passes here; which of them the node would have run is decided in the split's
+        // order below, as its backoff decides in the order of its images.
+        p.first = VerifyCandidates(single_candidates, own, map, geo, lo_first);
+        p.full = VerifyCandidates(candidates, q_vecs[qi], map, geo, lo);
       } else {
         p.loc = VerifyCandidates(candidates, q_vecs[qi], map, geo, lo);
       }
@@ -565,13 +568,25 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
       bar.Add();
     });
     bar.Finish();
+    if (escalate) {
+      // The node's stream: the split's images in order through one backoff
+      // (features.query_escalate_backoff), each fix chosen by EscalatedFix as the node's.
+      EscalationBackoff backoff(c.features.query_escalate_backoff);
+      for (PerQuery& p : per) {
+        const size_t skipped = backoff.skipped();
+        p.loc = EscalatedFix(
+            true, lo, [&] { return p.first; }, [&] { return p.full; }, &p.escalated, &backoff);
+        p.skipped = backoff.skipped() != skipped;
+      }
+    }
     sr.recall.assign(std::size(kRecallN), 0.0);
     std::vector<RankedAnswer> top1, closures;
     for (size_t qi = 0; qi < per.size(); ++qi) {
       const PerQuery& p = per[qi];
       sr.verified_poses += p.verified;
       sr.wrong_verified_poses += p.wrong;
-      sr.escalated += p.escalated ? 1 : 0;
+      sr.escalated += p.escalated && !p.skipped ? 1 : 0;
+      sr.first_passes_skipped += p.skipped ? 1 : 0;
       *verifications += p.rows;
       if (p.counted && !p.ranking.empty()) {
         top1.push_back({p.ranking[0].score, IsRelevant(p.truth, db_pose[p.ranking[0].image], geo)});
@@ -648,7 +663,8 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
   // With --sequence the stages add up as SequenceFix runs them: the query alone first (unless
   // --sequence-always), then, when it gives no fix, the combined view.
   // An escalating query (escalate) adds up both passes when the first gives no fix.
-  auto time_query = [&](const cv::Mat& img, size_t split, size_t qi, Samples* out) {
+  auto time_query = [&](const cv::Mat& img, size_t split, size_t qi, Samples* out,
+                        EscalationBackoff* backoff) {
     using Clock = std::chrono::steady_clock;
     const auto t0 = Clock::now();
     Clock::duration extraction{}, transform{}, query{};
@@ -682,7 +698,7 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
             f = extract(fxq);
             return alone();
           },
-          nullptr);
+          nullptr, backoff);
     } else {
       f = extract(fxq);
       if (a.sequence > 1) {
@@ -719,9 +735,12 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
     dst->total = Summarise(s.to);
   };
   Samples main_samples;
+  // An escalating preset's timed queries go through one backoff in the pool's (random) order: a
+  // robot's images, in order over one floor, are kinder to it.
+  EscalationBackoff main_backoff(c.features.query_escalate_backoff);
   auto time_one = [&](size_t qi) {
     const auto& [s, i] = pool[qi];
-    time_query(q_sources[s].LoadGray(i), s, i, &main_samples);
+    time_query(q_sources[s].LoadGray(i), s, i, &main_samples, &main_backoff);
   };
   if (rotation != nullptr) {
     rotation->Arrive(rotation_index, time_one, pool.size());
@@ -734,6 +753,7 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
     bar.Finish();
   }
   pr.timed = pool.size();
+  pr.timed_first_passes_skipped = main_backoff.skipped();
   pr.timed_side_by_side = rotation != nullptr;
   summarise(main_samples, &pr);
   if (!a.timing_kernels.empty()) {
@@ -741,6 +761,8 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
     const std::string limit = SimdLimit();
     const size_t nk = a.timing_kernels.size();
     std::vector<Samples> samples(nk);
+    std::vector<EscalationBackoff> backoffs(nk,
+                                            EscalationBackoff(c.features.query_escalate_backoff));
     pr.by_kernel.resize(nk);
     ProgressBar kbar("timing kernels", pool.size(), !a.quiet);
     for (size_t qi = 0; qi < pool.size(); ++qi) {
@@ -753,7 +775,7 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
           pr.by_kernel[k].hamming = ActiveHammingKernelName();
           pr.by_kernel[k].l2_bytes = ActiveByteDistanceKernelName();
         }
-        time_query(img, pool[qi].first, pool[qi].second, &samples[k]);
+        time_query(img, pool[qi].first, pool[qi].second, &samples[k], &backoffs[k]);
       }
       kbar.Add();
     }

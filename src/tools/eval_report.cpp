@@ -103,6 +103,7 @@ std::string ToJson(const EvalArgs& a, const Dataset& ds, const std::vector<Prese
     // Query options a map does not record (FormatRetrievalConfig leaves them out).
     j.Key("query_num_features").Int(pr.config.features.query_num_features);
     j.Key("query_escalate").Bool(pr.config.features.query_escalate);
+    j.Key("query_escalate_backoff").Int(pr.config.features.query_escalate_backoff);
     j.Key("verification").Str(FormatVerificationOptions(pr.config.verification));
     j.Key("localization_candidates").Int(pr.config.verification.candidates);
     j.Key("database_images").Int(static_cast<long long>(pr.db_images));
@@ -139,6 +140,7 @@ std::string ToJson(const EvalArgs& a, const Dataset& ds, const std::vector<Prese
       j.Key("queries_with_relevant").Int(static_cast<long long>(s.counted));
       j.Key("queries_without_relevant").Int(static_cast<long long>(s.no_relevant));
       j.Key("escalated_queries").Int(static_cast<long long>(s.escalated));
+      j.Key("first_passes_skipped").Int(static_cast<long long>(s.first_passes_skipped));
       j.Key("map_at_1000").Num(s.map);
       j.Key("recall_at_n").Nums(s.recall);
       j.Key("separation").Open('{').Key("threshold").Num(s.separation.threshold);
@@ -170,6 +172,7 @@ std::string ToJson(const EvalArgs& a, const Dataset& ds, const std::vector<Prese
     j.Key("timing").Open('{');
     j.Key("queries").Int(static_cast<long long>(pr.timed));
     j.Key("presets_side_by_side").Bool(pr.timed_side_by_side);
+    j.Key("first_passes_skipped").Int(static_cast<long long>(pr.timed_first_passes_skipped));
     j.Key("kernels").Open('{').Key("hamming").Str(ActiveHammingKernelName());
     j.Key("l2_bytes").Str(ActiveByteDistanceKernelName()).Close('}');
     // The stages of PresetResult and of each KernelTiming.

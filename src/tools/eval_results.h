@@ -84,6 +84,9 @@ struct SplitResult {
   // Queries an escalating preset (features.query_escalate) localized with its full pass: the
   // first pass, as a keyframe is extracted, gave no fix with escalate_min_inliers inliers.
   size_t escalated = 0;
+  // Queries its backoff (features.query_escalate_backoff) sent straight to the full pass, the
+  // split's images taken in order as a stream.
+  size_t first_passes_skipped = 0;
   double map = 0;
   std::vector<double> recall;  // at kRecallN
   Separation separation;
@@ -142,6 +145,7 @@ struct PresetResult {
   };
   std::vector<KernelTiming> by_kernel;
   size_t timed = 0;
+  size_t timed_first_passes_skipped = 0;  // of an escalating preset's timed queries (backoff)
   bool timed_side_by_side = false;  // --timing-alternate: timed in turn with the other presets
   size_t db_images = 0;
   RetrievalConfig config;

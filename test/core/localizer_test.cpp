@@ -1165,6 +1165,95 @@ TEST(Localizer, EscalatingQueriesTakeMoreKeypointsOnlyWhenTheFirstPassFails) {
   EXPECT_THROW(o.retrieval.features.Check(), std::invalid_argument);
 }
 
+// features.query_escalate_backoff: after first passes that fail, a stream's next images go
+// straight to the full pass, 1, 3, 7, ... of them, at most the backoff; a first pass that stands
+// starts again. The node's stream through LocalizeImage: a covered camera (blank images), then
+// the floor again.
+TEST(Localizer, EscalationBackoffSkipsFirstPassesAfterFailuresUntilOneStands) {
+  // The pattern, pass by pass: 'F' a first pass that fails, 'S' one that stands, '-' skipped.
+  auto run = [](int max_skip, const std::string& outcomes) {
+    EscalationBackoff b(max_skip);
+    std::string trace;
+    size_t next = 0;
+    while (next < outcomes.size()) {
+      if (!b.TryFirstPass()) {
+        trace += '-';
+        continue;
+      }
+      const bool stood = outcomes[next++] == 'S';
+      b.Record(stood);
+      trace += stood ? 'S' : 'F';
+    }
+    EXPECT_EQ(b.skipped(), static_cast<size_t>(std::count(trace.begin(), trace.end(), '-')));
+    return trace;
+  };
+  EXPECT_EQ(run(0, "FFFS"), "FFFS");
+  EXPECT_EQ(run(5, "FFFFS"), "F-F---F-----F-----S");
+  EXPECT_EQ(run(5, "FSFS"), "F-SF-S");
+  EXPECT_EQ(run(2, "FFFS"), "F-F--F--S");
+  EXPECT_THROW(EscalationBackoff(-1), std::invalid_argument);
+  LocalizationOptions lo;
+  EscalationBackoff b(3);
+  int firsts = 0;
+  auto first = [&firsts] {
+    ++firsts;
+    return Localization{};
+  };
+  auto full = [] { return Localization{}; };
+  bool escalated = false;
+  for (int i = 0; i < 6; ++i) (void)EscalatedFix(true, lo, first, full, &escalated, &b);
+  EXPECT_TRUE(escalated);
+  EXPECT_EQ(firsts, 2);  // F - F - - -
+  EXPECT_EQ(b.skipped(), 4u);
+  // Without escalation the backoff is not consulted.
+  (void)EscalatedFix(false, lo, first, full, &escalated, &b);
+  EXPECT_EQ(b.skipped(), 4u);
+  EXPECT_EQ(firsts, 2);
+
+  // The node's stream: LocalizeImage with the localizer's backoff.
+  const Scene& s = TheScene();
+  LocalizerOptions o = Options();
+  o.retrieval.features.query_num_features = 500;
+  o.retrieval.features.query_escalate = true;
+  o.retrieval.features.query_escalate_backoff = 3;
+  o.retrieval.features.Check();
+  Localizer loc(s.vocabulary, "test.gtvoc", o);
+  for (size_t i = 0; i < s.db_images.size(); ++i) {
+    loc.Add(loc.Process(s.db_images[i]), static_cast<int64_t>(i), s.db_poses[i]);
+  }
+  EscalationBackoff stream = loc.NewBackoff();
+  EXPECT_EQ(stream.max_skip(), 3);
+  const cv::Mat blank(s.revisits[0].size(), CV_8UC1, cv::Scalar(128));
+  std::string trace;
+  auto image = [&](const cv::Mat& gray) {
+    const size_t skipped = stream.skipped();
+    ProcessedImage used;
+    bool escalated = false;
+    const Localization fix = loc.LocalizeImage(gray, &used, &escalated, &stream);
+    // Skipped or escalated, the image was localized with the query's keypoints.
+    EXPECT_EQ(used.first_pass, !escalated);
+    trace += stream.skipped() != skipped ? '-' : escalated ? 'F' : 'S';
+    return fix;
+  };
+  for (int i = 0; i < 3; ++i) EXPECT_FALSE(image(blank).success);
+  // The floor again: the first three images go straight to the full pass and localize there;
+  // the next tries the first pass, which stands, and so do the rest.
+  ASSERT_GE(s.revisits.size(), 4u);
+  for (size_t q = 0; q < s.revisits.size(); ++q) {
+    const Localization fix = image(s.revisits[q]);
+    ASSERT_TRUE(fix.success) << "place " << q << ": " << fix.reason;
+    const Pose2D& t = s.revisit_poses[q];
+    EXPECT_LT(1000 * std::hypot(fix.estimate.floor_from_query.x - t.x,
+                                fix.estimate.floor_from_query.y - t.y),
+              4.8);
+  }
+  EXPECT_EQ(trace, "F-F---" + std::string(s.revisits.size() - 3, 'S'));
+  // Not recorded in the map.
+  LocalizerOptions without = o;
+  without.retrieval.features.query_escalate_backoff = 0;
+  EXPECT_EQ(FormatRetrievalConfig(o.retrieval), FormatRetrievalConfig(without.retrieval));
+}
+
 // Sequence queries: an image mostly hidden (glare, a lens smudge: not the floor) localizes with
 // the two images before it, combined through odometry that is 0.2 mm and 0.1 degree off.
 TEST(Localizer, SequenceQueriesLocalizeAHiddenImageWithTheImagesBeforeIt) {

@@ -50,6 +50,13 @@ struct FeatureOptions {
   // query_num_features above num_features. Not used for sequence queries, the maintenance mode or
   // the candidate services, which take query_num_features keypoints at once. Not recorded in maps.
   bool query_escalate = false;
+  // With query_escalate, in the node's localization mode (a stream of images, in order): after a
+  // first pass that gave no fix that stands, the next 1, 3, 7, ... images (doubling with each
+  // such first pass in a row, at most this many) go straight to the full pass (EscalationBackoff,
+  // pose.h). Where the floor has aged, most first passes would fail and cost their time for
+  // nothing. 0: every image tries the first pass. The localize service, whose images are not a
+  // stream, always tries it. Not recorded in maps.
+  int query_escalate_backoff = 0;
   // ORB (cv::ORB); the defaults are the paper's (8 levels at scale 1.2).
   float orb_scale_factor = 1.2f;  // pyramid scale step
   int orb_num_levels = 8;         // pyramid levels

@@ -206,11 +206,17 @@ class Localizer {
   // inliers processed as a query and localized in full (EscalatedFix). gtbow localize takes a
   // map's recorded options, which hold neither query_num_features nor query_escalate. *image (if
   // given) receives the image the returned fix, or failure, is the localization of; *escalated
-  // whether that was the full pass. Throws as Process does.
+  // whether that was the full pass. With a `backoff` (the node's stream of images; from
+  // NewBackoff), the first pass runs only when it says so (EscalationBackoff). Throws as Process
+  // does.
   Localization LocalizeImage(const cv::Mat& gray, ProcessedImage* image = nullptr,
-                             bool* escalated = nullptr) const;
+                             bool* escalated = nullptr, EscalationBackoff* backoff = nullptr) const;
   // Whether LocalizeImage escalates (features.query_escalate).
   bool escalates() const { return options_.retrieval.features.query_escalate; }
+  // A stream's backoff for LocalizeImage (features.query_escalate_backoff).
+  EscalationBackoff NewBackoff() const {
+    return EscalationBackoff(options_.retrieval.features.query_escalate_backoff);
+  }
 
   // A sequence query (sequence.h): images[0] is the newest image, the others the robot's images
   // just before it, poses[i] each one's pose in a common odometry frame (metres, radians, the

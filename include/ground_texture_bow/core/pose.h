@@ -191,13 +191,39 @@ struct Localization {
 // `options` without guided matching, which the full pass keeps.
 LocalizationOptions FirstPassOptions(const LocalizationOptions& options);
 
+// Which images of a stream try an escalating query's first pass (FeatureOptions::
+// query_escalate_backoff): after a first pass that gave no fix that stands, the next 1, 3, 7, ...
+// images (doubling with each such first pass in a row, at most `max_skip`) go straight to the
+// full pass; a first pass that stands starts again from none. A robot's images follow each other
+// over the same floor: where it has aged, most first passes would fail, and most are skipped.
+// max_skip 0: every image tries the first pass. One per stream of images; not thread-safe.
+class EscalationBackoff {
+ public:
+  explicit EscalationBackoff(int max_skip = 0);
+  // For the next image: false sends it straight to the full pass (and counts it as skipped).
+  bool TryFirstPass();
+  // The outcome of the first pass just tried: whether its fix stood.
+  void Record(bool stood);
+  int max_skip() const { return max_skip_; }
+  size_t skipped() const { return skipped_; }  // images sent straight to the full pass
+
+ private:
+  int max_skip_;
+  int failures_ = 0;  // first passes in a row that gave no fix that stands
+  int left_ = 0;      // images still to skip
+  size_t skipped_ = 0;
+};
+
 // An escalating query's fix (what the node, the localize service and gtbow eval all do): with
 // `escalate`, the first pass's fix when it has one with at least options.escalate_min_inliers
-// inliers, else the full pass's; without, the full pass's. `full` runs only when needed. *escalated
-// (if given) says whether the fix, or the failure, is the full pass's.
+// inliers, else the full pass's; without, the full pass's. `full` runs only when needed. With a
+// `backoff` (a stream's images, in order), the first pass runs only when it says so, and its
+// outcome is recorded there. *escalated (if given) says whether the fix, or the failure, is the
+// full pass's.
 Localization EscalatedFix(bool escalate, const LocalizationOptions& options,
                           const std::function<Localization()>& first,
-                          const std::function<Localization()>& full, bool* escalated);
+                          const std::function<Localization()>& full, bool* escalated,
+                          EscalationBackoff* backoff = nullptr);
 
 // Where the localizer finds a database image's keypoints and pose.
 struct MapAccess {

@@ -201,8 +201,8 @@ class LocalizerServer {
   std::atomic<uint64_t> received_{0}, processed_{0}, dropped_{0}, rejected_{0}, debug_images_{0},
       rejected_requests_{0}, missing_tf_{0}, fixes_{0}, loop_closures_{0}, failed_fixes_{0},
       held_closures_{0}, held_fixes_{0}, relocalizations_{0}, sequence_queries_{0},
-      escalated_queries_{0}, unusable_tf_{0}, views_added_{0}, keyframes_retired_{0},
-      keyframes_reposed_{0}, pose_updates_refused_{0},
+      escalated_queries_{0}, first_passes_skipped_{0}, unusable_tf_{0}, views_added_{0},
+      keyframes_retired_{0}, keyframes_reposed_{0}, pose_updates_refused_{0},
       keyframe_poses_stamp_ns_{0};             // header stamp of the newest keyframe_poses applied
   std::atomic<bool> scale_known_{false};       // explicit, from the map, or from camera_info
   std::atomic<bool> scale_from_map_{false};    // a loaded map's: the camera is checked against it
@@ -233,6 +233,9 @@ class LocalizerServer {
   std::atomic<uint64_t> rectified_{0};
 
   gtbow::QuerySequence sequence_;  // localization mode's last images; worker only
+  // Which of localization mode's single images try an escalating preset's first pass
+  // (features.query_escalate_backoff); worker only.
+  gtbow::EscalationBackoff backoff_;
   // Maintenance mode (core/maintenance.h): made from the map on the first fix, made again when
   // the map is replaced (maintainer_stale_) or the image size or scale changes; worker only.
   std::unique_ptr<gtbow::MapMaintainer> maintainer_;
