@@ -178,7 +178,7 @@ REAL_CHANGING_PRESETS = ["changing_floors", "ablation/changing/no_min_spread",
                          "ablation/changing/query_only",
                          "ablation/changing/transient_only", "ablation/changing/both_polarities",
                          "ablation/changing/six_inliers", "ablation/changing/guided",
-                         "ablation/changing/guided_repeat_check", "ablation/changing/escalate"]
+                         "ablation/changing/guided_repeat_check", "ablation/changing/no_escalate", "ablation/changing/no_backoff"]
 # The held-out photographs (scripts/benchmark_real.sh): the photos of ../shared/real_floors that
 # neither the benchmark's map nor its training uses, plaster1 included (a training photo of the
 # benchmark, here a map: its own training split leaves it out).
@@ -186,7 +186,7 @@ HELDOUT_PRESETS = ["high_accuracy", "changing_floors", "ablation/changing/no_min
                    "ablation/changing/no_guided",
                    "ablation/changing/six_inliers",
                    "ablation/changing/guided", "ablation/changing/guided_repeat_check",
-                   "ablation/changing/escalate"]
+                   "ablation/changing/no_escalate", "ablation/changing/no_backoff"]
 
 # photo label (gtbow synth --photo's split suffix) -> (surface, textured?)
 REAL_PHOTOS = collections.OrderedDict([
@@ -217,7 +217,7 @@ REAL_EXPECT = {
                              "changing_floors", "ablation/changing/no_min_spread",
                              "ablation/changing/no_guided", "ablation/changing/query_only", "ablation/changing/transient_only",
                              "ablation/changing/both_polarities", "ablation/changing/guided",
-                             "ablation/changing/guided_repeat_check", "ablation/changing/escalate"],
+                             "ablation/changing/guided_repeat_check", "ablation/changing/no_escalate", "ablation/changing/no_backoff"],
 }
 # The small version in make test (real_floor_small_test): two photos, day 0, 20 queries.
 REAL_SMALL = {

@@ -645,7 +645,7 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
   for (size_t s = 0; s < q_sources.size(); ++s)
     for (size_t i = 0; i < q_sources[s].size(); ++i) pool.emplace_back(s, i);
   std::mt19937_64 rng(7);
-  std::shuffle(pool.begin(), pool.end(), rng);
+  if (!a.timing_in_order) std::shuffle(pool.begin(), pool.end(), rng);
   pool.resize(std::min(pool.size(), a.timing_queries));
   // A localization query is extracted with the query options (query_num_features; an
   // escalating preset's first pass as a keyframe); the insertion is timed with the image
@@ -735,8 +735,8 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
     dst->total = Summarise(s.to);
   };
   Samples main_samples;
-  // An escalating preset's timed queries go through one backoff in the pool's (random) order: a
-  // robot's images, in order over one floor, are kinder to it.
+  // An escalating preset's timed queries go through one backoff in the pool's order: random, so
+  // unkind to it where the splits differ, unless --timing-in-order (a drive's images).
   EscalationBackoff main_backoff(c.features.query_escalate_backoff);
   auto time_one = [&](size_t qi) {
     const auto& [s, i] = pool[qi];
@@ -753,6 +753,7 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
     bar.Finish();
   }
   pr.timed = pool.size();
+  pr.timed_in_order = a.timing_in_order;
   pr.timed_first_passes_skipped = main_backoff.skipped();
   pr.timed_side_by_side = rotation != nullptr;
   summarise(main_samples, &pr);
@@ -941,6 +942,9 @@ void RegisterEval(CLI::App& app) {
                 "With several presets, time them side by side: each timed query runs through "
                 "every preset in turn, the order rotating, so that a change in the machine's "
                 "speed falls on every preset alike (every preset's map is kept in memory)");
+  cmd->add_flag("--timing-in-order", a->timing_in_order,
+                "Time the first --timing-queries queries in the splits' order (a drive's images "
+                "as a stream: an escalating preset's backoff) instead of a random sample");
   cmd->add_option("--timing-kernels", a->timing_kernels,
                   "Also time each of these SIMD kernels (portable, popcnt, avx2, avx512, neon) "
                   "on every timed query, side by side (a kernel the CPU lacks runs the next one "

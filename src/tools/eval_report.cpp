@@ -172,6 +172,7 @@ std::string ToJson(const EvalArgs& a, const Dataset& ds, const std::vector<Prese
     j.Key("timing").Open('{');
     j.Key("queries").Int(static_cast<long long>(pr.timed));
     j.Key("presets_side_by_side").Bool(pr.timed_side_by_side);
+    j.Key("in_order").Bool(pr.timed_in_order);
     j.Key("first_passes_skipped").Int(static_cast<long long>(pr.timed_first_passes_skipped));
     j.Key("kernels").Open('{').Key("hamming").Str(ActiveHammingKernelName());
     j.Key("l2_bytes").Str(ActiveByteDistanceKernelName()).Close('}');
@@ -277,7 +278,9 @@ std::string ToMarkdown(const EvalArgs& a, const std::vector<PresetResult>& resul
       md << b;
     }
     const PaperTiming& p = PaperTimingFor(pr.config);
-    md << "\nTiming over " << pr.timed << " random queries against the full database, one thread"
+    md << "\nTiming over " << pr.timed
+       << (pr.timed_in_order ? " queries in order" : " random queries")
+       << " against the full database, one thread"
        << (pr.timed_side_by_side ? ", the presets side by side (the order rotating)" : "")
        << " (ms; kernels: " << ActiveSimdKernels() << "; paper: " << p.name
        << ", i7-13700, 32,251 images):\n\n";

@@ -55,6 +55,9 @@ struct EvalArgs {
   // The presets timed side by side: each timed query runs through every preset in turn, the
   // order rotating from query to query (TimingRotation in eval_command.cpp).
   bool timing_alternate = false;
+  // The timed queries in the splits' order (the first timing_queries), not a random sample: a
+  // stream of images, as a drive's split holds them (an escalating preset's backoff).
+  bool timing_in_order = false;
   int candidates = 0;   // 0: each preset's verification.candidates
   int min_inliers = 0;  // 0: each preset's verification.min_inliers
   // Sequence queries: each query with the sequence - 1 images of its trail (gtbow synth
@@ -147,6 +150,7 @@ struct PresetResult {
   size_t timed = 0;
   size_t timed_first_passes_skipped = 0;  // of an escalating preset's timed queries (backoff)
   bool timed_side_by_side = false;  // --timing-alternate: timed in turn with the other presets
+  bool timed_in_order = false;      // --timing-in-order
   size_t db_images = 0;
   RetrievalConfig config;
   MaintenanceResult maintenance;  // --maintain

@@ -246,12 +246,12 @@ REAL_PRESETS = ["high_accuracy", "fast", "paper_literal", "paper_literal_fast", 
                 "ablation/changing/query_only", "ablation/changing/transient_only",
                 "ablation/changing/both_polarities", "ablation/changing/six_inliers",
                 "ablation/changing/guided",
-                "ablation/changing/guided_repeat_check", "ablation/changing/escalate"]
+                "ablation/changing/guided_repeat_check", "ablation/changing/no_escalate", "ablation/changing/no_backoff"]
 CHANGING_LC = ["changing_floors", "ablation/changing/no_min_spread", "ablation/changing/no_guided",
                "ablation/changing/query_only",
                "ablation/changing/transient_only",
                "ablation/changing/both_polarities", "ablation/changing/guided",
-               "ablation/changing/guided_repeat_check", "ablation/changing/escalate"]
+               "ablation/changing/guided_repeat_check", "ablation/changing/no_escalate", "ablation/changing/no_backoff"]
 
 
 def real_results(photos=PHOTOS, presets=REAL_PRESETS, plain_smooth=0.05, ha_smooth=0.95, ha_map=0.85,
@@ -313,7 +313,7 @@ class Real(Base):
                                                               "ablation/changing/six_inliers",
                                                               "ablation/changing/guided",
                                                               "ablation/changing/guided_repeat_check",
-                                                              "ablation/changing/escalate"]))
+                                                              "ablation/changing/no_escalate", "ablation/changing/no_backoff"]))
         self.expect(OK, "write_real_results.py", "--heldout", held, ins[0], self.docs, *ins[1:])
         self.assertIn("Held-out photographs", self.section("real"))
 
