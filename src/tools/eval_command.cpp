@@ -817,7 +817,22 @@ void RunEval(const EvalArgs& a) {
   }
   // Every preset is read now: a typo in the last of several presets fails before hours of work.
   for (const auto& p : presets) (void)LoadRetrievalConfig(p);
-  // Outputs are staged, so that a failed run leaves no half-written results.
+  // Outputs are staged, so that a failed run leaves no half-written results. An earlier run's
+  // results (results.json) are replaced; any other non-empty directory (a dataset, a home
+  // directory given by mistake) is refused, never deleted.
+  {
+    std::error_code ec;
+    const fs::path out = fs::absolute(a.out).lexically_normal();
+    if (out == fs::absolute(a.dataset).lexically_normal()) {
+      throw std::runtime_error("--out '" + a.out + "' is the dataset; choose another directory");
+    }
+    if (fs::is_directory(out, ec) && !fs::is_empty(out, ec) &&
+        !fs::exists(out / "results.json", ec)) {
+      throw std::runtime_error("output directory '" + out.string() +
+                               "' exists and holds no earlier gtbow eval results (results.json); "
+                               "choose another --out or empty it");
+    }
+  }
   const fs::path staging = StageDirectory(a.out, true);
   std::vector<std::pair<std::string, std::string>> dumps;  // (path, contents)
   try {

@@ -259,6 +259,18 @@ TEST_F(GtbowCli, TrainEvaluateAndBenchmarkOnASyntheticFloor) {
   EXPECT_NE(r.code, 0);
   EXPECT_NE(r.output.find("bad.gtvoc"), std::string::npos) << r.output;
   EXPECT_FALSE(fs::exists(dir_ / "bad_eval"));  // no half-written results
+  // --out replaces an earlier run's results, never another directory (the dataset, a mistake).
+  r = RunGtbow("eval --dataset " + d + " --vocab " + Out("v.gtvoc") + " --out " + d + " -q");
+  EXPECT_NE(r.code, 0);
+  EXPECT_NE(r.output.find("is the dataset"), std::string::npos) << r.output;
+  EXPECT_TRUE(fs::exists(fs::path(d) / "dataset.yaml"));
+  fs::create_directories(dir_ / "mine");
+  std::ofstream(dir_ / "mine" / "notes.txt") << "mine";
+  r = RunGtbow("eval --dataset " + d + " --vocab " + Out("v.gtvoc") + " --out " + Out("mine") +
+               " -q");
+  EXPECT_NE(r.code, 0);
+  EXPECT_NE(r.output.find("no earlier gtbow eval results"), std::string::npos) << r.output;
+  EXPECT_TRUE(fs::exists(dir_ / "mine" / "notes.txt"));
 }
 
 }  // namespace
