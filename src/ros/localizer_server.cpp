@@ -610,6 +610,7 @@ void LocalizerServer::ProcessImage(const Pending& msg) {
     gtbow::Localization fix;
     if (escalating) {
       bool escalated = false;
+      if (backoff_stale_.exchange(false)) backoff_ = localizer_->NewBackoff();
       const size_t skipped = backoff_.skipped();
       fix = localizer_->LocalizeImage(floor_image, &img, &escalated, &backoff_);
       if (backoff_.skipped() != skipped) {

@@ -37,6 +37,7 @@ void LocalizerServer::ForgetMapState() {
   }
   mapper_->Reset();
   maintainer_stale_ = true;  // maintenance tracks the new map's keyframes
+  backoff_stale_ = true;     // another map: its first passes start again
   std::lock_guard<std::mutex> lock(gate_mutex_);
   gate_.Reset();  // another map: another map -> odom
 }
@@ -196,6 +197,7 @@ bool LocalizerServer::OnSetMode(ground_texture_bow::SetMode::Request& req,
   res.status = Serve("set_mode", true, [&] {
     const Mode m = ParseMode(req.mode);
     maintainer_stale_ = true;  // keyframes mapped before the switch are tracked
+    backoff_stale_ = true;
     res.previous_mode = ModeName(mode_.exchange(m));
     return MakeStatus(Status::OK, "mode " + req.mode);
   });

@@ -472,6 +472,9 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
       bool escalated = false;    // escalate: the full pass gave loc
       bool skipped = false;      // escalate: the backoff sent it straight to the full pass
       Localization first, full;  // escalate: each pass's own fix (the backoff chooses, below)
+      // escalate: the first pass's verified candidates, counted unless the backoff skipped it.
+      size_t first_verified = 0, first_wrong = 0;
+      std::string first_rows;
       Pose2D truth;
       size_t verified = 0, wrong = 0;  // over all top-K candidates
       std::string rows;                // verifications.csv
@@ -518,10 +521,10 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
       }
       // One row per verified candidate: its evidence and its error against the truth.
       auto record = [&](size_t rank, const PoseEstimate& e,
-                        const std::vector<QueryResult>& candidates) {
-        ++p.verified;
+                        const std::vector<QueryResult>& candidates, bool first_pass = false) {
+        ++(first_pass ? p.first_verified : p.verified);
         const bool wrong = !IsCorrectPose(e.floor_from_query, p.truth);
-        p.wrong += wrong ? 1 : 0;
+        (first_pass ? p.first_wrong : p.wrong) += wrong ? 1 : 0;
         const Pose2D& f = e.floor_from_query;
         char b[512];
         std::snprintf(b, sizeof(b),
@@ -534,7 +537,7 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
                       1000.0 * std::hypot(f.x - p.truth.x, f.y - p.truth.y),
                       std::abs(WrapAngle(f.theta - p.truth.theta)) * 180.0 / M_PI, wrong ? 1 : 0,
                       f.x, f.y, f.theta, p.truth.x, p.truth.y, p.truth.theta);
-        p.rows += b;
+        (first_pass ? p.first_rows : p.rows) += b;
       };
       const std::vector<PoseEstimate> each = VerifyEach(candidates, q_vecs[qi], map, geo, lo_view);
       for (size_t k = 0; k < each.size(); ++k) {
@@ -547,7 +550,9 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
         // is never published (EscalatedFix), so it is not counted as verified.
         const int stands = escalate ? lo.escalate_min_inliers : 0;
         for (size_t k = 0; k < own.size(); ++k) {
-          if (own[k].success && own[k].inliers >= stands) record(k, own[k], single_candidates);
+          if (own[k].success && own[k].inliers >= stands) {
+            record(k, own[k], single_candidates, escalate);
+          }
         }
       }
       if (num_rel > 0) {
@@ -577,6 +582,11 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
         p.loc = EscalatedFix(
             true, lo, [&] { return p.first; }, [&] { return p.full; }, &p.escalated, &backoff);
         p.skipped = backoff.skipped() != skipped;
+        if (!p.skipped) {  // the first pass ran: its verified candidates count
+          p.verified += p.first_verified;
+          p.wrong += p.first_wrong;
+          p.rows += p.first_rows;
+        }
       }
     }
     sr.recall.assign(std::size(kRecallN), 0.0);
@@ -640,7 +650,8 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
     pr.splits.push_back(std::move(sr));
   }
 
-  // Timing: random queries against the full database, one thread, stage by stage.
+  // Timing: random queries (--timing-in-order: the first ones in order) against the full
+  // database, one thread, stage by stage.
   std::vector<std::pair<size_t, size_t>> pool;  // (split, query)
   for (size_t s = 0; s < q_sources.size(); ++s)
     for (size_t i = 0; i < q_sources[s].size(); ++i) pool.emplace_back(s, i);
@@ -736,10 +747,18 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
   };
   Samples main_samples;
   // An escalating preset's timed queries go through one backoff in the pool's order: random, so
-  // unkind to it where the splits differ, unless --timing-in-order (a drive's images).
-  EscalationBackoff main_backoff(c.features.query_escalate_backoff);
+  // unkind to it where the splits differ, unless --timing-in-order (a drive's images; each split
+  // a stream of its own, as in the accuracy loop).
+  const EscalationBackoff fresh_backoff(c.features.query_escalate_backoff);
+  EscalationBackoff main_backoff = fresh_backoff;
+  size_t main_split = 0, timed_skipped = 0;
   auto time_one = [&](size_t qi) {
     const auto& [s, i] = pool[qi];
+    if (a.timing_in_order && s != main_split) {
+      timed_skipped += main_backoff.skipped();
+      main_backoff = fresh_backoff;
+      main_split = s;
+    }
     time_query(q_sources[s].LoadGray(i), s, i, &main_samples, &main_backoff);
   };
   if (rotation != nullptr) {
@@ -754,7 +773,7 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
   }
   pr.timed = pool.size();
   pr.timed_in_order = a.timing_in_order;
-  pr.timed_first_passes_skipped = main_backoff.skipped();
+  pr.timed_first_passes_skipped = timed_skipped + main_backoff.skipped();
   pr.timed_side_by_side = rotation != nullptr;
   summarise(main_samples, &pr);
   if (!a.timing_kernels.empty()) {
@@ -762,12 +781,14 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
     const std::string limit = SimdLimit();
     const size_t nk = a.timing_kernels.size();
     std::vector<Samples> samples(nk);
-    std::vector<EscalationBackoff> backoffs(nk,
-                                            EscalationBackoff(c.features.query_escalate_backoff));
+    std::vector<EscalationBackoff> backoffs(nk, fresh_backoff);
     pr.by_kernel.resize(nk);
     ProgressBar kbar("timing kernels", pool.size(), !a.quiet);
     for (size_t qi = 0; qi < pool.size(); ++qi) {
       const cv::Mat img = q_sources[pool[qi].first].LoadGray(pool[qi].second);
+      if (a.timing_in_order && qi > 0 && pool[qi].first != pool[qi - 1].first) {
+        backoffs.assign(nk, fresh_backoff);  // each split a stream of its own
+      }
       for (size_t j = 0; j < nk; ++j) {
         const size_t k = (qi + j) % nk;
         SetSimdLimit(a.timing_kernels[k]);
@@ -822,9 +843,12 @@ void RunEval(const EvalArgs& a) {
   // directory given by mistake) is refused, never deleted.
   {
     std::error_code ec;
-    const fs::path out = fs::absolute(a.out).lexically_normal();
-    if (out == fs::absolute(a.dataset).lexically_normal()) {
-      throw std::runtime_error("--out '" + a.out + "' is the dataset; choose another directory");
+    const fs::path out = fs::weakly_canonical(fs::absolute(a.out), ec);
+    const fs::path data = fs::weakly_canonical(fs::absolute(a.dataset), ec);
+    const auto rel = data.lexically_relative(out);
+    if (!rel.empty() && *rel.begin() != "..") {  // the dataset is --out or inside it
+      throw std::runtime_error("--out '" + a.out + "' holds the dataset '" + a.dataset +
+                               "'; choose another directory");
     }
     if (fs::is_directory(out, ec) && !fs::is_empty(out, ec) &&
         !fs::exists(out / "results.json", ec)) {
@@ -944,7 +968,9 @@ void RegisterEval(CLI::App& app) {
                   "Vocabulary file (default: train on the dataset's train split)");
   cmd->add_option("--preset", a->presets,
                   "Retrieval configuration YAML (repeatable); default: high accuracy");
-  cmd->add_option("-o,--out", a->out, "Output directory (results.json, summary.md, plots)")
+  cmd->add_option("-o,--out", a->out,
+                  "Output directory (results.json, summary.md, plots); an earlier run's results "
+                  "are replaced, any other non-empty directory is refused")
       ->capture_default_str();
   cmd->add_option("--query-splits", a->query_splits, "Query splits (default: every query* split)")
       ->delimiter(',');

@@ -262,7 +262,7 @@ TEST_F(GtbowCli, TrainEvaluateAndBenchmarkOnASyntheticFloor) {
   // --out replaces an earlier run's results, never another directory (the dataset, a mistake).
   r = RunGtbow("eval --dataset " + d + " --vocab " + Out("v.gtvoc") + " --out " + d + " -q");
   EXPECT_NE(r.code, 0);
-  EXPECT_NE(r.output.find("is the dataset"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("holds the dataset"), std::string::npos) << r.output;
   EXPECT_TRUE(fs::exists(fs::path(d) / "dataset.yaml"));
   fs::create_directories(dir_ / "mine");
   std::ofstream(dir_ / "mine" / "notes.txt") << "mine";

@@ -1201,12 +1201,15 @@ TEST(Localizer, EscalationBackoffSkipsFirstPassesAfterFailuresUntilOneStands) {
   };
   auto full = [] { return Localization{}; };
   bool escalated = false;
-  for (int i = 0; i < 6; ++i) (void)EscalatedFix(true, lo, first, full, &escalated, &b);
+  for (int i = 0; i < 5; ++i) (void)EscalatedFix(true, lo, first, full, &escalated, &b);
   EXPECT_TRUE(escalated);
-  EXPECT_EQ(firsts, 2);  // F - F - - -
-  EXPECT_EQ(b.skipped(), 4u);
-  // Without escalation the backoff is not consulted.
+  EXPECT_EQ(firsts, 2);  // F - F - -, one skip still to come
+  EXPECT_EQ(b.skipped(), 3u);
+  // Without escalation the backoff is not consulted: the pending skip stays for the next image.
   (void)EscalatedFix(false, lo, first, full, &escalated, &b);
+  EXPECT_FALSE(escalated);
+  EXPECT_EQ(b.skipped(), 3u);
+  (void)EscalatedFix(true, lo, first, full, &escalated, &b);
   EXPECT_EQ(b.skipped(), 4u);
   EXPECT_EQ(firsts, 2);
 

@@ -234,8 +234,10 @@ class LocalizerServer {
 
   gtbow::QuerySequence sequence_;  // localization mode's last images; worker only
   // Which of localization mode's single images try an escalating preset's first pass
-  // (features.query_escalate_backoff); worker only.
+  // (features.query_escalate_backoff); worker only. Started again when the map or the mode
+  // changes (backoff_stale_).
   gtbow::EscalationBackoff backoff_;
+  std::atomic<bool> backoff_stale_{false};
   // Maintenance mode (core/maintenance.h): made from the map on the first fix, made again when
   // the map is replaced (maintainer_stale_) or the image size or scale changes; worker only.
   std::unique_ptr<gtbow::MapMaintainer> maintainer_;
