@@ -750,14 +750,17 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
   // unkind to it where the splits differ, unless --timing-in-order (a drive's images; each split
   // a stream of its own, as in the accuracy loop).
   const EscalationBackoff fresh_backoff(c.features.query_escalate_backoff);
+  // Where the in-order pool moves on to the next split (time_one is called with qi in order).
+  auto new_stream = [&](size_t qi) {
+    return a.timing_in_order && qi > 0 && pool[qi].first != pool[qi - 1].first;
+  };
   EscalationBackoff main_backoff = fresh_backoff;
-  size_t main_split = 0, timed_skipped = 0;
+  size_t timed_skipped = 0;
   auto time_one = [&](size_t qi) {
     const auto& [s, i] = pool[qi];
-    if (a.timing_in_order && s != main_split) {
+    if (new_stream(qi)) {
       timed_skipped += main_backoff.skipped();
       main_backoff = fresh_backoff;
-      main_split = s;
     }
     time_query(q_sources[s].LoadGray(i), s, i, &main_samples, &main_backoff);
   };
@@ -786,9 +789,7 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
     ProgressBar kbar("timing kernels", pool.size(), !a.quiet);
     for (size_t qi = 0; qi < pool.size(); ++qi) {
       const cv::Mat img = q_sources[pool[qi].first].LoadGray(pool[qi].second);
-      if (a.timing_in_order && qi > 0 && pool[qi].first != pool[qi - 1].first) {
-        backoffs.assign(nk, fresh_backoff);  // each split a stream of its own
-      }
+      if (new_stream(qi)) backoffs.assign(nk, fresh_backoff);  // each split a stream of its own
       for (size_t j = 0; j < nk; ++j) {
         const size_t k = (qi + j) % nk;
         SetSimdLimit(a.timing_kernels[k]);
