@@ -45,7 +45,7 @@ bash "$here/scripts/real_floor_dataset.sh" "$gtbow" "$photos" "$data"
   --preset "$cfg/ablation/changing/query_only.yaml" \
   --preset "$cfg/ablation/changing/transient_only.yaml" --preset "$cfg/ablation/changing/both_polarities.yaml" \
   --preset "$cfg/ablation/changing/six_inliers.yaml" --preset "$cfg/ablation/changing/guided.yaml" \
-  --preset "$cfg/ablation/changing/guided_repeat_check.yaml" --preset "$cfg/ablation/changing/no_escalate.yaml" --preset "$cfg/ablation/changing/no_backoff.yaml" --out "$out" --timing-queries 20 --no-plots -q
+  --preset "$cfg/ablation/changing/guided_repeat_check.yaml" --preset "$cfg/ablation/changing/no_escalate.yaml" --preset "$cfg/ablation/changing/no_backoff.yaml" --preset "$cfg/ablation/changing/no_plain_repeat.yaml" --out "$out" --timing-queries 20 --no-plots -q
 # Sequence queries (issue 28): each query with the 2 and 4 images before it, through odometry.
 seq=()
 for n in 3 5; do
@@ -91,7 +91,7 @@ for surface in smooth_concrete epoxy; do
   --preset "$cfg/ablation/changing/no_guided.yaml" \
     --preset "$cfg/ablation/changing/query_only.yaml" \
     --preset "$cfg/ablation/changing/transient_only.yaml" --preset "$cfg/ablation/changing/both_polarities.yaml" \
-    --preset "$cfg/ablation/changing/guided.yaml" --preset "$cfg/ablation/changing/guided_repeat_check.yaml" --preset "$cfg/ablation/changing/no_escalate.yaml" --preset "$cfg/ablation/changing/no_backoff.yaml" \
+    --preset "$cfg/ablation/changing/guided.yaml" --preset "$cfg/ablation/changing/guided_repeat_check.yaml" --preset "$cfg/ablation/changing/no_escalate.yaml" --preset "$cfg/ablation/changing/no_backoff.yaml" --preset "$cfg/ablation/changing/no_plain_repeat.yaml" \
     --out "$out-$surface" --timing-queries 20 --timing-alternate --no-plots -q > /dev/null
   lc+=("$out-$surface/results.json")
   for n in 3 5; do
@@ -113,7 +113,7 @@ bash "$here/scripts/real_floor_dataset.sh" "$gtbow" "$photos" "$data-heldout" he
   --preset "$cfg/changing_floors.yaml" --preset "$cfg/ablation/changing/no_min_spread.yaml" \
   --preset "$cfg/ablation/changing/no_guided.yaml" \
   --preset "$cfg/ablation/changing/six_inliers.yaml" \
-  --preset "$cfg/ablation/changing/guided.yaml" --preset "$cfg/ablation/changing/guided_repeat_check.yaml" --preset "$cfg/ablation/changing/no_escalate.yaml" --preset "$cfg/ablation/changing/no_backoff.yaml" \
+  --preset "$cfg/ablation/changing/guided.yaml" --preset "$cfg/ablation/changing/guided_repeat_check.yaml" --preset "$cfg/ablation/changing/no_escalate.yaml" --preset "$cfg/ablation/changing/no_backoff.yaml" --preset "$cfg/ablation/changing/no_plain_repeat.yaml" \
   --out "$out-heldout" --timing-queries 0 --no-plots -q > /dev/null
 "$gtbow" eval --dataset "$data-heldout" --words 20000 --preset "$cfg/high_accuracy.yaml" \
   --preset "$cfg/changing_floors.yaml" --sequence 5 --out "$out-heldout-sequence5" \

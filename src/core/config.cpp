@@ -182,6 +182,8 @@ const std::vector<Field>& Fields() {
       Verify("guided_repeat_check", &LocalizationOptions::guided_repeat_check),
       Verify("guided_repeat_candidates", &LocalizationOptions::guided_repeat_candidates),
       Verify("guided_repeat_ratio", &LocalizationOptions::guided_repeat_ratio),
+      Verify("plain_repeat_below", &LocalizationOptions::plain_repeat_below),
+      Verify("plain_repeat_ratio", &LocalizationOptions::plain_repeat_ratio),
       Verify("guided_combined", &LocalizationOptions::guided_combined),
       Verify("escalate_min_inliers", &LocalizationOptions::escalate_min_inliers),
       VerifyPose("min_inliers", &PoseOptions::min_inliers),

@@ -193,6 +193,15 @@ void LocalizationOptions::Check() const {
   if (!(guided_repeat_ratio >= 0.0) || !std::isfinite(guided_repeat_ratio)) {
     throw std::invalid_argument("localization: guided_repeat_ratio must be >= 0");
   }
+  if (!(plain_repeat_ratio >= 0.0) || !std::isfinite(plain_repeat_ratio)) {
+    throw std::invalid_argument("localization: plain_repeat_ratio must be >= 0");
+  }
+  if (plain_repeat_below < 0) {
+    throw std::invalid_argument("localization: plain_repeat_below must be >= 0");
+  }
+  if (plain_repeat_below > 0 && !guided_repeat_check) {
+    throw std::invalid_argument("localization: plain_repeat_below needs guided_repeat_check");
+  }
   if (guided_repeat_candidates < 1) {
     throw std::invalid_argument("localization: guided_repeat_candidates must be >= 1");
   }
@@ -618,9 +627,11 @@ PoseEstimate VerifyGuided(const QueryResult& r, const BowVector& query, const Ma
 // The repeat check (LocalizationOptions::guided_repeat_check) of `query`'s guided estimate `est`
 // with map image `image`: empty when the image, queried against its own map, verifies nowhere else
 // (or, with guided_repeat_ratio, where the query itself holds too few inliers); else why not.
+// A plain estimate (`plain`, the check of LocalizationOptions::plain_repeat_below) contests the
+// copy with its own guided matches, counted as the copy's are; `ratio` is the check's.
 std::string RepeatsElsewhere(const BowVector& query, const PoseEstimate& est, uint32_t image,
                              const MapAccess& map, const ImageGeometry& geometry,
-                             const LocalizationOptions& o) {
+                             const LocalizationOptions& o, double ratio, bool plain) {
   if (!map.query_of || !map.retrieve) {
     throw std::invalid_argument(
         "guided_repeat_check: the map gives no query of its own images (MapAccess::query_of, "
@@ -632,6 +643,14 @@ std::string RepeatsElsewhere(const BowVector& query, const PoseEstimate& est, ui
       map.retrieve(self, image, static_cast<size_t>(o.guided_repeat_candidates));
   const Pose2D own = map.pose(image);
   const size_t n = std::min(results.size(), static_cast<size_t>(o.guided_repeat_candidates));
+  int held = est.inliers;  // the query's inliers at the keyframe, counted as at a copy
+  if (plain && ratio > 0.0) {
+    held = EstimatePose(GuidedMatches(query.source, query.source_descriptors, map.keypoints(image),
+                                      map.descriptors(image), est.database_from_query, geometry,
+                                      o.guided_radius, o.guided_max_distance),
+                        own, geometry, o.pose)
+               .inliers;
+  }
   for (size_t k = 0; k < n; ++k) {
     const QueryResult& r = results[k];
     if (r.image == image || (map.unusable && !map.unusable(r.image).empty())) continue;
@@ -647,7 +666,7 @@ std::string RepeatsElsewhere(const BowVector& query, const PoseEstimate& est, ui
                   "keyframe %u repeats elsewhere: it verifies with keyframe %u (%d inliers) "
                   "%.1f mm and %.1f degrees from its own pose",
                   image, r.image, e.inliers, 1000.0 * apart, turned * 180.0 / M_PI);
-    if (o.guided_repeat_ratio > 0.0) {
+    if (ratio > 0.0) {
       // The query matched at the copy through the same hypothesis (image -> copy after
       // query -> image): a query whose place is the image's holds fewer inliers there.
       const Rigid2D& a = est.database_from_query;  // image from query
@@ -659,23 +678,39 @@ std::string RepeatsElsewhere(const BowVector& query, const PoseEstimate& est, ui
           query.source, query.source_descriptors, map.keypoints(r.image), map.descriptors(r.image),
           copy_from_query, geometry, o.guided_radius, o.guided_max_distance);
       const PoseEstimate at_copy = EstimatePose(there, map.pose(r.image), geometry, o.pose);
-      if (at_copy.inliers < o.guided_repeat_ratio * est.inliers) continue;
+      if (at_copy.inliers < ratio * held) continue;
       const size_t len = std::strlen(why);
       std::snprintf(why + len, sizeof(why) - len,
-                    "; the query holds %d inliers at the copy against %d (guided_repeat_ratio %g)",
-                    at_copy.inliers, est.inliers, o.guided_repeat_ratio);
+                    "; the query holds %d inliers at the copy against %d (%s %g)", at_copy.inliers,
+                    held, plain ? "plain_repeat_ratio" : "guided_repeat_ratio", ratio);
     }
     return why;
   }
   return std::string();
 }
 
-// `options` without guided matching and its repeat check.
+// `options` without guided matching of the query (the repeat checks keep their own).
 LocalizationOptions WithoutGuidedMatching(const LocalizationOptions& options) {
   LocalizationOptions o = options;
-  o.guided_radius = 0.0;
-  o.guided_repeat_check = false;
+  o.guided = false;
   return o;
+}
+
+// The repeat check of a query's best plain pose (LocalizationOptions::plain_repeat_below), in
+// `out` (verified or not; consensus applied): empty when it does not apply or finds no copy,
+// else why the place is ambiguous.
+std::string PlainRepeat(const std::vector<QueryResult>& results, const BowVector& query,
+                        const std::vector<PoseEstimate>& out, const MapAccess& map,
+                        const ImageGeometry& geometry, const LocalizationOptions& o) {
+  if (o.plain_repeat_below <= 0) return std::string();
+  int best = -1;
+  for (size_t k = 0; k < out.size(); ++k) {
+    if (out[k].success && (best < 0 || out[k].inliers > out[best].inliers))
+      best = static_cast<int>(k);
+  }
+  if (best < 0 || out[best].inliers >= o.plain_repeat_below) return std::string();
+  return RepeatsElsewhere(query, out[best], results[best].image, map, geometry, o,
+                          o.plain_repeat_ratio, true);
 }
 
 }  // namespace
@@ -810,13 +845,22 @@ std::vector<PoseEstimate> VerifyEach(const std::vector<QueryResult>& results,
     if (out[k].success) poses[k] = out[k].floor_from_query;
   }
   ResolveConflicts(poses, &out, o);
-  // Guided matching, when no candidate verified and none was refused by the consensus.
+  // The repeat check of the best plain pose: a copy refuses every pose of the query.
+  const std::string plain_repeat = PlainRepeat(results, query, out, map, geometry, o);
+  for (size_t k = 0; k < n && !plain_repeat.empty(); ++k) {
+    if (!out[k].success) continue;
+    out[k].success = false;
+    out[k].reason = "repeat: " + plain_repeat;
+    out[k].inlier_indices.clear();
+  }
+  // Guided matching, when no candidate verified and none was refused by the consensus (or the
+  // repeat check).
   bool any = false, refused = false;
   for (size_t k = 0; k < n; ++k) {
     any = any || out[k].success;
     refused = refused || (poses[k] && !out[k].success);
   }
-  if (o.guided_radius > 0.0 && !any && !refused) {
+  if (o.guided && o.guided_radius > 0.0 && !any && !refused) {
     std::vector<char> guided(n, 0);
     std::string repeat;  // the repeat check's finding: the place is ambiguous
     for (size_t k = 0; k < n; ++k) {
@@ -827,7 +871,8 @@ std::vector<PoseEstimate> VerifyEach(const std::vector<QueryResult>& results,
       poses[k] = out[k].floor_from_query;
       guided[k] = 1;
       if (o.guided_repeat_check && repeat.empty()) {
-        repeat = RepeatsElsewhere(query, out[k], results[k].image, map, geometry, o);
+        repeat = RepeatsElsewhere(query, out[k], results[k].image, map, geometry, o,
+                                  o.guided_repeat_ratio, false);
       }
     }
     // One guided keyframe that repeats elsewhere makes every guided pose of the query doubtful:
@@ -899,22 +944,31 @@ Localization VerifyCandidates(const std::vector<QueryResult>& results, const Bow
       std::string why = map.unusable ? map.unusable(r.image) : std::string();
       if (why.empty()) {
         PoseEstimate est = VerifyCandidate(r, query, map, geometry, o, &loc.inlier_pixels);
-        if (est.success) return answer(rank, std::move(est));
+        if (est.success) {
+          const std::string repeat = PlainRepeat({r}, query, {est}, map, geometry, o);
+          if (repeat.empty()) return answer(rank, std::move(est));
+          // The place is ambiguous: no pose for this query, plain or guided (as VerifyEach).
+          loc.inlier_pixels.clear();
+          reasons += (reasons.empty() ? "" : "; ") +
+                     ("image " + std::to_string(r.image) + ": repeat: " + repeat);
+          loc.reason = "none of " + std::to_string(n) + " candidates verified (" + reasons + ")";
+          return loc;
+        }
         why = est.reason;
         seeds[rank] = std::move(est);
       }
       note(rank, why);
     }
     // Guided matching, in rank order, when none verified.
-    for (size_t rank = 0; rank < n; ++rank) {
+    for (size_t rank = 0; rank < n && o.guided; ++rank) {
       if (!GuidedSeed(seeds[rank], o)) continue;
       PoseEstimate est =
           VerifyGuided(results[rank], query, map, geometry, o, seeds[rank], &loc.inlier_pixels);
       if (!est.success) continue;
-      const std::string repeat =
-          o.guided_repeat_check
-              ? RepeatsElsewhere(query, est, results[rank].image, map, geometry, o)
-              : std::string();
+      const std::string repeat = o.guided_repeat_check
+                                     ? RepeatsElsewhere(query, est, results[rank].image, map,
+                                                        geometry, o, o.guided_repeat_ratio, false)
+                                     : std::string();
       if (repeat.empty()) return answer(rank, std::move(est));
       loc.inlier_pixels.clear();  // no guided pose for this query (as VerifyEach)
       reasons += "; guided: " + repeat;

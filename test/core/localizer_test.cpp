@@ -240,6 +240,44 @@ TEST(Localizer, TheRepeatCheckRefusesGuidedPosesFromAKeyframeWithACopy) {
   EXPECT_TRUE(map(o, true)->Localize(img).success);
 }
 
+// The repeat check of plain poses through the Localizer (the node's map): with the place's
+// keyframe also in the map 0.3 m away, the query holds as many inliers at either, and its plain
+// pose is refused; without the copy the pose stands, and with the check off a pose is published.
+TEST(Localizer, TheRepeatCheckOfPlainPosesRefusesAPlaceTheMapHoldsTwice) {
+  const Scene& s = TheScene();
+  LocalizerOptions o = Options();
+  o.retrieval.verification =
+      LoadRetrievalConfig(GTBOW_CONFIG_DIR "/changing_floors.yaml").verification;
+  ASSERT_GT(o.retrieval.verification.plain_repeat_below, 0);
+  o.retrieval.verification.max_conflict_ratio = 0.0;      // first verified: no consensus
+  o.retrieval.verification.plain_repeat_below = 1000000;  // every plain pose is checked
+  const size_t d = 3;                                     // revisit 1 is database place 3
+  auto map = [&](const LocalizerOptions& opt, bool copy) {
+    auto loc = std::make_unique<Localizer>(s.vocabulary, "test.gtvoc", opt);
+    for (size_t i = 0; i < s.db_images.size(); ++i)
+      loc->Add(loc->Process(s.db_images[i]), 1000 + static_cast<int64_t>(i), s.db_poses[i]);
+    if (copy) {
+      loc->Add(loc->Process(s.db_images[d]), 5000,
+               Pose2D{s.db_poses[d].x + 0.3, s.db_poses[d].y, s.db_poses[d].theta});
+    }
+    return loc;
+  };
+  const auto single = map(o, false);
+  const ProcessedImage img = single->Process(s.revisits[1]);
+  const Localization kept = single->Localize(img);
+  ASSERT_TRUE(kept.success) << kept.reason;
+  const Pose2D& t = s.revisit_poses[1];
+  EXPECT_LT(1000 * std::hypot(kept.estimate.floor_from_query.x - t.x,
+                              kept.estimate.floor_from_query.y - t.y),
+            4.8);
+  const Localization refused = map(o, true)->Localize(img);
+  EXPECT_FALSE(refused.success);
+  EXPECT_NE(refused.reason.find("repeat: keyframe"), std::string::npos) << refused.reason;
+  EXPECT_NE(refused.reason.find("plain_repeat_ratio 0.9"), std::string::npos) << refused.reason;
+  o.retrieval.verification.plain_repeat_below = 0;  // without it, the first verified pose
+  EXPECT_TRUE(map(o, true)->Localize(img).success);
+}
+
 TEST(Localizer, CandidatesCarryVerifiedRelativePosesAndNoFixWithoutPoses) {
   const Scene& s = TheScene();
   const auto loc = Mapped(false);  // a SLAM backend's keyframes: no poses
@@ -1159,7 +1197,11 @@ TEST(Localizer, EscalatingQueriesTakeMoreKeypointsOnlyWhenTheFirstPassFails) {
   EXPECT_TRUE(escalated);
   EXPECT_EQ(firsts, 3);
   EXPECT_EQ(fulls, 3);
-  EXPECT_EQ(FirstPassOptions(o.retrieval.verification).guided_radius, 0.0);
+  // The first pass has no guided matching of its own; its plain poses are checked for repeats.
+  EXPECT_FALSE(FirstPassOptions(o.retrieval.verification).guided);
+  EXPECT_TRUE(o.retrieval.verification.guided);
+  EXPECT_EQ(FirstPassOptions(o.retrieval.verification).plain_repeat_below,
+            o.retrieval.verification.plain_repeat_below);
   // It needs more query keypoints than a keyframe has.
   o.retrieval.features.query_num_features = 250;
   EXPECT_THROW(o.retrieval.features.Check(), std::invalid_argument);

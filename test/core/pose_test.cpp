@@ -471,8 +471,70 @@ TEST(PoseChecks, GuidedMatchingRecoversMatchesTheRatioTestDrops) {
   o.guided_repeat_candidates = 5;
   o.guided_radius = 0.0;  // the check belongs to guided matching
   EXPECT_THROW(o.Check(), std::invalid_argument);
-  o.guided_repeat_check = false;
+
+  // The repeat check of plain poses (plain_repeat_below): with 5 inliers enough, the 5 clean
+  // matches give a plain pose. An exact copy elsewhere holds as many of the query's guided
+  // inliers as the keyframe does (35 each): refused, in both procedures and in a first pass
+  // (no guided matching of the query). Not checked at or above the threshold; a copy of a part,
+  // or a copy at the keyframe's own place, leaves the pose standing.
+  map.keypoints = [&](uint32_t) { return dk; };
+  map.descriptors = [&](uint32_t) { return dd; };
+  map.query_of = [&](uint32_t) {
+    BowVector v;
+    v.source = dk;
+    v.source_descriptors = dd;
+    return v;
+  };
+  o.guided_radius = 8.0;
+  o.guided_repeat_check = true;
+  o.guided_repeat_ratio = 0.5;
+  o.pose.min_inliers = 5;
+  for (const double conflict : {0.0, 0.5}) {
+    o.max_conflict_ratio = conflict;
+    copy_pose = {1.2, 2.0, M_PI / 2};
+    o.plain_repeat_below = 0;
+    const Localization plain = VerifyCandidates({r}, query, map, geo, o);
+    ASSERT_TRUE(plain.success) << plain.reason;
+    EXPECT_EQ(plain.estimate.inliers, clean);
+    o.plain_repeat_below = clean + 1;
+    refused_for("keyframe 3 repeats elsewhere: it verifies with keyframe 7");
+    refused_for("the query holds 35 inliers at the copy against 35 (plain_repeat_ratio 1)");
+    const Localization first = VerifyCandidates({r}, query, map, geo, FirstPassOptions(o));
+    EXPECT_FALSE(first.success);
+    EXPECT_NE(first.reason.find("repeat: keyframe 3"), std::string::npos) << first.reason;
+    std::vector<PoseEstimate> each = VerifyEach({r}, query, map, geo, o);
+    ASSERT_EQ(each.size(), 1u);
+    EXPECT_FALSE(each[0].success);
+    EXPECT_NE(each[0].reason.find("repeat: keyframe 3"), std::string::npos) << each[0].reason;
+    o.plain_repeat_below = clean;  // 5 inliers are not below 5: not checked
+    EXPECT_TRUE(VerifyCandidates({r}, query, map, geo, o).success);
+    o.plain_repeat_below = clean + 1;
+    map.keypoints = [&](uint32_t i) { return i == 7 ? part : dk; };
+    map.descriptors = [&](uint32_t i) { return i == 7 ? part_d : dd; };
+    const Localization partial_plain = VerifyCandidates({r}, query, map, geo, o);
+    ASSERT_TRUE(partial_plain.success) << partial_plain.reason;
+    EXPECT_EQ(partial_plain.estimate.inliers, clean);
+    map.keypoints = [&](uint32_t) { return dk; };
+    map.descriptors = [&](uint32_t) { return dd; };
+    copy_pose = {1.0, 2.0, 0.0};  // the "copy" is the keyframe's own place: no repeat
+    EXPECT_TRUE(VerifyCandidates({r}, query, map, geo, o).success);
+    o.plain_repeat_ratio = 0.0;  // without the contest any copy refuses; here there is none
+    EXPECT_TRUE(VerifyCandidates({r}, query, map, geo, o).success);
+    o.plain_repeat_ratio = 1.0;
+  }
+  o.plain_repeat_ratio = -1.0;
+  EXPECT_THROW(o.Check(), std::invalid_argument);
+  o.plain_repeat_ratio = 1.0;
+  o.plain_repeat_below = -1;
+  EXPECT_THROW(o.Check(), std::invalid_argument);
+  o.plain_repeat_below = clean + 1;
+  o.guided_repeat_check = false;  // the plain check extends the guided one
+  EXPECT_THROW(o.Check(), std::invalid_argument);
+  o.plain_repeat_below = 0;
+  o.pose.min_inliers = 8;
+  o.guided_repeat_ratio = 0.0;
   EXPECT_FALSE(LocalizationOptions{}.guided_repeat_check);
+  EXPECT_EQ(LocalizationOptions{}.plain_repeat_below, 0);
 
   o.guided_radius = -1.0;
   EXPECT_THROW(o.Check(), std::invalid_argument);

@@ -246,12 +246,20 @@ REAL_PRESETS = ["high_accuracy", "fast", "paper_literal", "paper_literal_fast", 
                 "ablation/changing/query_only", "ablation/changing/transient_only",
                 "ablation/changing/both_polarities", "ablation/changing/six_inliers",
                 "ablation/changing/guided",
-                "ablation/changing/guided_repeat_check", "ablation/changing/no_escalate", "ablation/changing/no_backoff"]
+                "ablation/changing/guided_repeat_check", "ablation/changing/no_escalate", "ablation/changing/no_backoff",
+                "ablation/changing/no_plain_repeat"]
 CHANGING_LC = ["changing_floors", "ablation/changing/no_min_spread", "ablation/changing/no_guided",
                "ablation/changing/query_only",
                "ablation/changing/transient_only",
                "ablation/changing/both_polarities", "ablation/changing/guided",
-               "ablation/changing/guided_repeat_check", "ablation/changing/no_escalate", "ablation/changing/no_backoff"]
+               "ablation/changing/guided_repeat_check", "ablation/changing/no_escalate", "ablation/changing/no_backoff",
+                "ablation/changing/no_plain_repeat"]
+
+HELDOUT_PRESETS = ["high_accuracy", "changing_floors", "ablation/changing/no_min_spread",
+                   "ablation/changing/no_guided", "ablation/changing/six_inliers",
+                   "ablation/changing/guided", "ablation/changing/guided_repeat_check",
+                   "ablation/changing/no_escalate", "ablation/changing/no_backoff",
+                   "ablation/changing/no_plain_repeat"]
 
 
 def real_results(photos=PHOTOS, presets=REAL_PRESETS, plain_smooth=0.05, ha_smooth=0.95, ha_map=0.85,
@@ -307,13 +315,7 @@ class Real(Base):
         self.assertIn("Floors that change", text)
         # The held-out photographs, when given, get their table.
         held = dump(os.path.join(self.dir, "heldout", "results.json"),
-                    real_results(photos=PHOTOS[:2], presets=["high_accuracy", "changing_floors",
-                                                              "ablation/changing/no_min_spread",
-                                                              "ablation/changing/no_guided",
-                                                              "ablation/changing/six_inliers",
-                                                              "ablation/changing/guided",
-                                                              "ablation/changing/guided_repeat_check",
-                                                              "ablation/changing/no_escalate", "ablation/changing/no_backoff"]))
+                    real_results(photos=PHOTOS[:2], presets=HELDOUT_PRESETS))
         self.expect(OK, "write_real_results.py", "--heldout", held, ins[0], self.docs, *ins[1:])
         self.assertIn("Held-out photographs", self.section("real"))
 
@@ -448,6 +450,12 @@ class Real(Base):
     def test_changing_floors_smooth_concrete_missed(self):
         self.expect(MISSED, "write_real_results.py", "--check", *self.inputs(cf_smooth=0.5),
                     why="changing_floors, synthetic smooth concrete, day-180 localization")
+
+    def test_changing_floors_wrong_pose_on_the_heldout_photos(self):
+        held = dump(os.path.join(self.dir, "heldout", "results.json"),
+                    real_results(photos=PHOTOS[:2], presets=HELDOUT_PRESETS, cf_wrong=1))
+        self.expect(MISSED, "write_real_results.py", "--check", "--heldout", held, *self.inputs(),
+                    why="changing_floors, the held-out photographs, single images, wrong verified")
 
     def test_changing_floors_wrong_pose(self):
         self.expect(MISSED, "write_real_results.py", "--check", *self.inputs(real_results(cf_wrong=1)),

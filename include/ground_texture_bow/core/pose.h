@@ -156,6 +156,18 @@ struct LocalizationOptions {
   // keyframe's pose stands when the query holds fewer than this fraction of its inliers there
   // (its place is the keyframe's, the copy covering only part of it).
   double guided_repeat_ratio = 0.0;
+  // The repeat check for plain poses too (needs guided_repeat_check; 0 = off): a query's best
+  // pose from plain matching with fewer inliers than this is checked as a guided pose is (its
+  // keyframe queried against its own map, then, with guided_repeat_ratio, the query matched at
+  // the copy), and when it repeats elsewhere every pose of the query is refused. On a floor that
+  // holds a copy of a part of itself, a query whose own place is not among its candidates can
+  // verify at the copy by plain matching alone (the held-out photos' desert floor, 117 mm away).
+  // The same cost as the guided check, for each such pose.
+  int plain_repeat_below = 0;
+  // Its contest at the copy: the pose is refused when the query, matched at the copy, holds at
+  // least this fraction of the inliers that it holds at its keyframe, both counted by guided
+  // matching through the pose's hypothesis (0: any copy refuses).
+  double plain_repeat_ratio = 1.0;
   // Guided matching (and its repeat check) for a sequence query's combined view too (sequence.h;
   // CombinedViewOptions). Off, a combined view is verified without it: on the held-out photos
   // guided matching of combined views published two copies of a sand floor turned 180 degrees,
@@ -166,6 +178,9 @@ struct LocalizationOptions {
   // fix does (0: any fix stands). On the held-out photographs the first pass's weak fixes
   // included a copy of a floor turned 180 degrees (10 inliers; docs/RESULTS.md).
   int escalate_min_inliers = 0;
+  // Guided matching of the query itself (not a config key): FirstPassOptions and
+  // CombinedViewOptions turn it off. The repeat checks still match guided where they must.
+  bool guided = true;
 
   void Check() const;
 };
