@@ -68,7 +68,14 @@ Localizer::Localizer(std::shared_ptr<Vocabulary> vocabulary, std::string vocabul
   descriptor_cols_ = sift ? 128 : 32;
   descriptor_type_ = sift ? CV_32F : CV_8U;
   verification_ = options_.retrieval.verification;
-  if (!options_.keep_descriptors) verification_.matches = MatchSource::kWords;
+  if (!options_.keep_descriptors) {
+    // Without descriptors in the map: the retrieval's word pairs, and neither guided matching
+    // nor its repeat checks (both match descriptors).
+    verification_.matches = MatchSource::kWords;
+    verification_.guided_radius = 0.0;
+    verification_.guided_repeat_check = false;
+    verification_.plain_repeat_below = 0;
+  }
   database_ = NewDatabase();
   keyframes_ = NewStore();
 }
@@ -178,6 +185,7 @@ uint32_t Localizer::Add(const ProcessedImage& image, int64_t stamp_ns,
       detail::MakePayload(image.features.keypoints, options_.keep_descriptors ? d : cv::Mat(),
                           record.width, record.height);
   std::unique_lock<std::shared_mutex> lock(mutex_);
+  repeats_.Clear();  // the map changes: the copies its repeat checks kept too
   const uint32_t id = database_->Add(image.bow);
   if (keyframes_->size() != id) {
     throw std::logic_error("keyframe ids out of step with the database");
@@ -240,6 +248,7 @@ size_t Localizer::UpdateKeyframePoses(const std::vector<KeyframePose>& poses) {
       ++applied;
     }
     std::unique_lock<std::shared_mutex> lock(mutex_);
+    repeats_.Clear();  // the map changes: the copies its repeat checks kept too
     if (generation_ != generation || moved_ != old) continue;  // a reset or load: again
     if (applied > 0) {
       moved_ = std::move(table);
@@ -414,6 +423,7 @@ Localization Localizer::Localize(const ProcessedImage& image) const {
       PrefetchPayloads(r, r.size());
       return r;
     };
+    map.repeats = &repeats_;
   }
   const auto results = database_->Query(image.bow, static_cast<size_t>(lo.candidates), true);
   PrefetchPayloads(results, results.size());
@@ -443,6 +453,7 @@ void Localizer::Reset() {
   std::shared_ptr<BowDatabase> db = NewDatabase();
   auto store = NewStore();
   std::unique_lock<std::shared_mutex> lock(mutex_);
+  repeats_.Clear();  // the map changes: the copies its repeat checks kept too
   database_.swap(db);
   keyframes_.swap(store);
   moved_.reset();
@@ -453,6 +464,7 @@ void Localizer::Reset() {
 
 bool Localizer::Retire(uint32_t id) {
   std::unique_lock<std::shared_mutex> lock(mutex_);
+  repeats_.Clear();  // the map changes: the copies its repeat checks kept too
   if (id >= keyframes_->size()) return false;
   return database_->Remove(id);
 }
@@ -463,6 +475,7 @@ void Localizer::SetMetersPerPixel(double meters_per_pixel) {
                                 std::to_string(meters_per_pixel));
   }
   std::unique_lock<std::shared_mutex> lock(mutex_);
+  repeats_.Clear();  // the map changes: the copies its repeat checks kept too
   if (meters_per_pixel == meters_per_pixel_.load()) return;
   if (keyframes_->size() > 0) {
     throw std::logic_error("the map holds " + std::to_string(keyframes_->size()) +

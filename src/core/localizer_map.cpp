@@ -612,6 +612,7 @@ size_t Localizer::Load(const std::filesystem::path& path, bool adopt_scale) {
       records, info.keyframes, reinterpret_cast<const uint8_t*>(d + l.offset[kPayload]),
       l.size[kPayload], stride, map));
   std::unique_lock<std::shared_mutex> lock(mutex_);
+  repeats_.Clear();  // the map changes: the copies its repeat checks kept too
   database_.swap(db);
   keyframes_.swap(store);
   if (adopt_scale) meters_per_pixel_ = info.meters_per_pixel;
@@ -684,6 +685,7 @@ void Localizer::ImportVersion1(const std::filesystem::path& path) {
   }
   if (r.remaining() != 0) r.Fail("trailing bytes after the keyframes");
   std::unique_lock<std::shared_mutex> lock(mutex_);
+  repeats_.Clear();  // the map changes: the copies its repeat checks kept too
   database_.swap(db);
   keyframes_.swap(store);
   moved_.reset();

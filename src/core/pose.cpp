@@ -629,28 +629,16 @@ PoseEstimate VerifyGuided(const QueryResult& r, const BowVector& query, const Ma
 // (or, with guided_repeat_ratio, where the query itself holds too few inliers); else why not.
 // A plain estimate (`plain`, the check of LocalizationOptions::plain_repeat_below) contests the
 // copy with its own guided matches, counted as the copy's are; `ratio` is the check's.
-std::string RepeatsElsewhere(const BowVector& query, const PoseEstimate& est, uint32_t image,
-                             const MapAccess& map, const ImageGeometry& geometry,
-                             const LocalizationOptions& o, double ratio, bool plain) {
-  if (!map.query_of || !map.retrieve) {
-    throw std::invalid_argument(
-        "guided_repeat_check: the map gives no query of its own images (MapAccess::query_of, "
-        "retrieve)");
-  }
+std::vector<RepeatCache::Copy> FindCopies(uint32_t image, const MapAccess& map,
+                                          const ImageGeometry& geometry,
+                                          const LocalizationOptions& o) {
+  std::vector<RepeatCache::Copy> copies;
   const BowVector self = map.query_of(image);
-  if (self.source.empty()) return std::string();
+  if (self.source.empty()) return copies;
   const std::vector<QueryResult> results =
       map.retrieve(self, image, static_cast<size_t>(o.guided_repeat_candidates));
   const Pose2D own = map.pose(image);
   const size_t n = std::min(results.size(), static_cast<size_t>(o.guided_repeat_candidates));
-  int held = est.inliers;  // the query's inliers at the keyframe, counted as at a copy
-  if (plain && ratio > 0.0) {
-    held = EstimatePose(GuidedMatches(query.source, query.source_descriptors, map.keypoints(image),
-                                      map.descriptors(image), est.database_from_query, geometry,
-                                      o.guided_radius, o.guided_max_distance),
-                        own, geometry, o.pose)
-               .inliers;
-  }
   for (size_t k = 0; k < n; ++k) {
     const QueryResult& r = results[k];
     if (r.image == image || (map.unusable && !map.unusable(r.image).empty())) continue;
@@ -658,15 +646,53 @@ std::string RepeatsElsewhere(const BowVector& query, const PoseEstimate& est, ui
     if (!e.success && GuidedSeed(e, o)) e = VerifyGuided(r, self, map, geometry, o, e, nullptr);
     if (!e.success) continue;
     const Pose2D& p = e.floor_from_query;
+    if (std::hypot(p.x - own.x, p.y - own.y) <= o.consensus_distance &&
+        std::abs(WrapAngle(p.theta - own.theta)) <= o.consensus_angle)
+      continue;
+    e.inlier_indices.clear();
+    copies.push_back({r.image, std::move(e)});
+  }
+  return copies;
+}
+
+std::string RepeatsElsewhere(const BowVector& query, const PoseEstimate& est, uint32_t image,
+                             const MapAccess& map, const ImageGeometry& geometry,
+                             const LocalizationOptions& o, double ratio, bool plain) {
+  if (!map.query_of || !map.retrieve) {
+    throw std::invalid_argument(
+        "guided_repeat_check (and plain_repeat_below): the map gives no query of its own images "
+        "(MapAccess::query_of, retrieve)");
+  }
+  // The keyframe's copies depend on the map alone: kept by the map's cache when it has one.
+  std::shared_ptr<const std::vector<RepeatCache::Copy>> copies =
+      map.repeats != nullptr
+          ? map.repeats->Get(image, [&] { return FindCopies(image, map, geometry, o); })
+          : std::make_shared<const std::vector<RepeatCache::Copy>>(
+                FindCopies(image, map, geometry, o));
+  const Pose2D own = map.pose(image);
+  // The query's inliers at the keyframe, counted as at a copy: a guided pose's own; a plain
+  // pose's from guided matching through its hypothesis, at the first copy found. Should that
+  // give no pose (0 inliers), any copy refuses: the check fails safe.
+  int held = plain ? -1 : est.inliers;
+  for (const RepeatCache::Copy& copy : *copies) {
+    const PoseEstimate& e = copy.estimate;
+    const Pose2D& p = e.floor_from_query;
     const double apart = std::hypot(p.x - own.x, p.y - own.y);
     const double turned = std::abs(WrapAngle(p.theta - own.theta));
-    if (apart <= o.consensus_distance && turned <= o.consensus_angle) continue;
     char why[300];
     std::snprintf(why, sizeof(why),
                   "keyframe %u repeats elsewhere: it verifies with keyframe %u (%d inliers) "
                   "%.1f mm and %.1f degrees from its own pose",
-                  image, r.image, e.inliers, 1000.0 * apart, turned * 180.0 / M_PI);
+                  image, copy.image, e.inliers, 1000.0 * apart, turned * 180.0 / M_PI);
     if (ratio > 0.0) {
+      if (held < 0) {
+        held =
+            EstimatePose(GuidedMatches(query.source, query.source_descriptors, map.keypoints(image),
+                                       map.descriptors(image), est.database_from_query, geometry,
+                                       o.guided_radius, o.guided_max_distance),
+                         own, geometry, o.pose)
+                .inliers;
+      }
       // The query matched at the copy through the same hypothesis (image -> copy after
       // query -> image): a query whose place is the image's holds fewer inliers there.
       const Rigid2D& a = est.database_from_query;  // image from query
@@ -674,10 +700,11 @@ std::string RepeatsElsewhere(const BowVector& query, const PoseEstimate& est, ui
       const double c = std::cos(b.theta), s = std::sin(b.theta);
       const Rigid2D copy_from_query{WrapAngle(a.theta + b.theta),
                                     {c * a.t.x - s * a.t.y + b.t.x, s * a.t.x + c * a.t.y + b.t.y}};
-      const std::vector<PointMatch> there = GuidedMatches(
-          query.source, query.source_descriptors, map.keypoints(r.image), map.descriptors(r.image),
-          copy_from_query, geometry, o.guided_radius, o.guided_max_distance);
-      const PoseEstimate at_copy = EstimatePose(there, map.pose(r.image), geometry, o.pose);
+      const std::vector<PointMatch> there =
+          GuidedMatches(query.source, query.source_descriptors, map.keypoints(copy.image),
+                        map.descriptors(copy.image), copy_from_query, geometry, o.guided_radius,
+                        o.guided_max_distance);
+      const PoseEstimate at_copy = EstimatePose(there, map.pose(copy.image), geometry, o.pose);
       if (at_copy.inliers < ratio * held) continue;
       const size_t len = std::strlen(why);
       std::snprintf(why + len, sizeof(why) - len,
@@ -756,6 +783,28 @@ Localization EscalatedFix(bool escalate, const LocalizationOptions& options,
   }
   if (escalated != nullptr) *escalated = escalate;
   return full();
+}
+
+std::shared_ptr<const std::vector<RepeatCache::Copy>> RepeatCache::Get(
+    uint32_t image, const std::function<std::vector<Copy>()>& find) {
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    const auto it = copies_.find(image);
+    if (it != copies_.end()) return it->second;
+  }
+  auto found = std::make_shared<const std::vector<Copy>>(find());  // outside the lock: slow
+  std::lock_guard<std::mutex> lock(mutex_);
+  return copies_.emplace(image, std::move(found)).first->second;
+}
+
+void RepeatCache::Clear() {
+  std::lock_guard<std::mutex> lock(mutex_);
+  copies_.clear();
+}
+
+size_t RepeatCache::size() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return copies_.size();
 }
 
 PoseEstimate VerifyCandidate(const QueryResult& r, const BowVector& query, const MapAccess& map,
@@ -939,7 +988,8 @@ Localization VerifyCandidates(const std::vector<QueryResult>& results, const Bow
     for (size_t k = 0; k < each.size(); ++k) note(k, each[k].reason);
   } else {
     std::vector<PoseEstimate> seeds(n);
-    for (size_t rank = 0; rank < n; ++rank) {
+    bool ambiguous = false;  // the repeat check refused the first verified pose
+    for (size_t rank = 0; rank < n && !ambiguous; ++rank) {
       const QueryResult& r = results[rank];
       std::string why = map.unusable ? map.unusable(r.image) : std::string();
       if (why.empty()) {
@@ -947,12 +997,13 @@ Localization VerifyCandidates(const std::vector<QueryResult>& results, const Bow
         if (est.success) {
           const std::string repeat = PlainRepeat({r}, query, {est}, map, geometry, o);
           if (repeat.empty()) return answer(rank, std::move(est));
-          // The place is ambiguous: no pose for this query, plain or guided (as VerifyEach).
+          // The place is ambiguous: no pose for this query, plain or guided. Without consensus
+          // the first verified pose is the one checked (VerifyEach checks the best of all).
           loc.inlier_pixels.clear();
           reasons += (reasons.empty() ? "" : "; ") +
                      ("image " + std::to_string(r.image) + ": repeat: " + repeat);
-          loc.reason = "none of " + std::to_string(n) + " candidates verified (" + reasons + ")";
-          return loc;
+          ambiguous = true;
+          continue;
         }
         why = est.reason;
         seeds[rank] = std::move(est);
@@ -960,7 +1011,7 @@ Localization VerifyCandidates(const std::vector<QueryResult>& results, const Bow
       note(rank, why);
     }
     // Guided matching, in rank order, when none verified.
-    for (size_t rank = 0; rank < n && o.guided; ++rank) {
+    for (size_t rank = 0; rank < n && o.guided && !ambiguous; ++rank) {
       if (!GuidedSeed(seeds[rank], o)) continue;
       PoseEstimate est =
           VerifyGuided(results[rank], query, map, geometry, o, seeds[rank], &loc.inlier_pixels);

@@ -188,6 +188,7 @@ MaintenanceResult Maintain(const EvalArgs& a, const RetrievalConfig& c, const Bo
         ms.correct += IsCorrectPose(fix.estimate.floor_from_query, truth) ? 1 : 0;
       }
       const MaintenanceStep step = maintainer.Observe(fix, stamp);
+      if ((!step.retire.empty() || step.add) && map.repeats != nullptr) map.repeats->Clear();
       for (uint32_t id : step.retire) {
         db->Remove(id);
         (*db_live)[id] = 0;
@@ -220,6 +221,7 @@ MaintenanceResult Maintain(const EvalArgs& a, const RetrievalConfig& c, const Bo
     bar.Finish();
     ms.keyframes_after = db->size();
     mr.sessions.push_back(ms);
+    if (map.repeats != nullptr) map.repeats->Clear();
   }
   return mr;
 }
@@ -440,6 +442,10 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
             r.end());
     return r;
   };
+  // Each keyframe's copies, found by the repeat checks, kept until the map changes (as the
+  // node's Localizer keeps them): a maintained map clears them at every change.
+  RepeatCache repeat_cache;
+  map.repeats = &repeat_cache;
   std::vector<std::string> db_names;
   for (size_t i = 0; i < db_src.size(); ++i) db_names.push_back(db_src.name(i));
   std::vector<char> db_live(db_pose.size(), 1);  // 0: retired by maintenance
@@ -756,12 +762,16 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
   };
   EscalationBackoff main_backoff = fresh_backoff;
   size_t timed_skipped = 0;
+  // The repeat checks' copies of keyframes (RepeatCache): a random timed query starts without
+  // them, as a robot's first image of a place does; in order (a drive's images) each split's
+  // stream starts without them and keeps what it found, as the node does.
   auto time_one = [&](size_t qi) {
     const auto& [s, i] = pool[qi];
     if (new_stream(qi)) {
       timed_skipped += main_backoff.skipped();
       main_backoff = fresh_backoff;
     }
+    if (!a.timing_in_order || qi == 0 || new_stream(qi)) repeat_cache.Clear();
     time_query(q_sources[s].LoadGray(i), s, i, &main_samples, &main_backoff);
   };
   if (rotation != nullptr) {
@@ -798,6 +808,7 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
           pr.by_kernel[k].hamming = ActiveHammingKernelName();
           pr.by_kernel[k].l2_bytes = ActiveByteDistanceKernelName();
         }
+        repeat_cache.Clear();  // every kernel alike, without the copies of keyframes
         time_query(img, pool[qi].first, pool[qi].second, &samples[k], &backoffs[k]);
       }
       kbar.Add();

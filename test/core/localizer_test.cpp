@@ -270,12 +270,28 @@ TEST(Localizer, TheRepeatCheckOfPlainPosesRefusesAPlaceTheMapHoldsTwice) {
   EXPECT_LT(1000 * std::hypot(kept.estimate.floor_from_query.x - t.x,
                               kept.estimate.floor_from_query.y - t.y),
             4.8);
-  const Localization refused = map(o, true)->Localize(img);
+  // The copy added to the same map: the copies its checks kept (none) go with the change.
+  single->Add(single->Process(s.db_images[d]), 5000,
+              Pose2D{s.db_poses[d].x + 0.3, s.db_poses[d].y, s.db_poses[d].theta});
+  const Localization refused = single->Localize(img);
   EXPECT_FALSE(refused.success);
   EXPECT_NE(refused.reason.find("repeat: keyframe"), std::string::npos) << refused.reason;
   EXPECT_NE(refused.reason.find("plain_repeat_ratio 0.9"), std::string::npos) << refused.reason;
-  o.retrieval.verification.plain_repeat_below = 0;  // without it, the first verified pose
+  EXPECT_FALSE(map(o, true)->Localize(img).success);  // a map made with the copy alike
+  o.retrieval.verification.plain_repeat_below = 0;    // without it, the first verified pose
   EXPECT_TRUE(map(o, true)->Localize(img).success);
+  // A map without descriptors has neither guided matching nor the repeat checks (both match
+  // descriptors): the preset localizes with the words' pairs, first passes and combined views too.
+  o.retrieval.verification.plain_repeat_below = 30;
+  o.keep_descriptors = false;
+  const auto words = map(o, false);
+  ProcessedImage w = words->Process(s.revisits[1]);
+  EXPECT_NO_THROW(words->Localize(w));
+  w.first_pass = true;
+  EXPECT_NO_THROW(words->Localize(w));
+  w.first_pass = false;
+  w.combined = true;
+  EXPECT_NO_THROW(words->Localize(w));
 }
 
 TEST(Localizer, CandidatesCarryVerifiedRelativePosesAndNoFixWithoutPoses) {
@@ -1197,11 +1213,16 @@ TEST(Localizer, EscalatingQueriesTakeMoreKeypointsOnlyWhenTheFirstPassFails) {
   EXPECT_TRUE(escalated);
   EXPECT_EQ(firsts, 3);
   EXPECT_EQ(fulls, 3);
-  // The first pass has no guided matching of its own; its plain poses are checked for repeats.
-  EXPECT_FALSE(FirstPassOptions(o.retrieval.verification).guided);
-  EXPECT_TRUE(o.retrieval.verification.guided);
-  EXPECT_EQ(FirstPassOptions(o.retrieval.verification).plain_repeat_below,
-            o.retrieval.verification.plain_repeat_below);
+  // The first pass has no guided matching of its own; its plain poses are checked for repeats
+  // (changing_floors' checks).
+  const LocalizationOptions cf =
+      LoadRetrievalConfig(GTBOW_CONFIG_DIR "/changing_floors.yaml").verification;
+  ASSERT_TRUE(cf.guided && cf.guided_repeat_check && cf.plain_repeat_below > 0);
+  const LocalizationOptions cf_first = FirstPassOptions(cf);
+  EXPECT_FALSE(cf_first.guided);
+  EXPECT_TRUE(cf_first.guided_repeat_check);
+  EXPECT_EQ(cf_first.plain_repeat_below, cf.plain_repeat_below);
+  EXPECT_EQ(cf_first.guided_radius, cf.guided_radius);  // the checks' own guided matches
   // It needs more query keypoints than a keyframe has.
   o.retrieval.features.query_num_features = 250;
   EXPECT_THROW(o.retrieval.features.Check(), std::invalid_argument);

@@ -514,14 +514,35 @@ TEST(PoseChecks, GuidedMatchingRecoversMatchesTheRatioTestDrops) {
     const Localization partial_plain = VerifyCandidates({r}, query, map, geo, o);
     ASSERT_TRUE(partial_plain.success) << partial_plain.reason;
     EXPECT_EQ(partial_plain.estimate.inliers, clean);
+    o.plain_repeat_ratio = 0.0;  // without the contest, the part copy refuses it too
+    refused_for("keyframe 3 repeats elsewhere: it verifies with keyframe 7");
+    o.plain_repeat_ratio = 1.0;
     map.keypoints = [&](uint32_t) { return dk; };
     map.descriptors = [&](uint32_t) { return dd; };
     copy_pose = {1.0, 2.0, 0.0};  // the "copy" is the keyframe's own place: no repeat
     EXPECT_TRUE(VerifyCandidates({r}, query, map, geo, o).success);
-    o.plain_repeat_ratio = 0.0;  // without the contest any copy refuses; here there is none
-    EXPECT_TRUE(VerifyCandidates({r}, query, map, geo, o).success);
-    o.plain_repeat_ratio = 1.0;
   }
+  // A map's RepeatCache keeps each keyframe's copies between queries: keyframe 3 is queried
+  // against its map once, and again after the cache is cleared (the map changed).
+  RepeatCache cache;
+  map.repeats = &cache;
+  int asked = 0;
+  map.query_of = [&](uint32_t) {
+    ++asked;
+    BowVector v;
+    v.source = dk;
+    v.source_descriptors = dd;
+    return v;
+  };
+  copy_pose = {1.2, 2.0, M_PI / 2};
+  refused_for("the query holds 35 inliers at the copy against 35 (plain_repeat_ratio 1)");
+  refused_for("the query holds 35 inliers at the copy against 35 (plain_repeat_ratio 1)");
+  EXPECT_EQ(asked, 1);
+  EXPECT_EQ(cache.size(), 1u);
+  cache.Clear();
+  refused_for("repeats elsewhere");
+  EXPECT_EQ(asked, 2);
+  map.repeats = nullptr;
   o.plain_repeat_ratio = -1.0;
   EXPECT_THROW(o.Check(), std::invalid_argument);
   o.plain_repeat_ratio = 1.0;

@@ -343,6 +343,9 @@ class Localizer {
   std::mutex update_mutex_;               // one UpdateKeyframePoses at a time
   std::atomic<double> meters_per_pixel_;  // set with mutex_ held; read anywhere
   uint64_t generation_ = 0;  // bumped by Load, ImportVersion1 and Reset; guarded by mutex_
+  // The repeat checks' copies of keyframes (RepeatCache), cleared by every change of the map
+  // (with mutex_ held exclusively; filled by localizations, which hold it shared).
+  mutable RepeatCache repeats_;
 };
 
 }  // namespace gtbow

@@ -12,8 +12,11 @@
 #include <cstdint>
 #include <functional>
 #include <limits>
+#include <memory>
+#include <mutex>
 #include <optional>
 #include <string>
+#include <unordered_map>
 #include <vector>
 
 #include "ground_texture_bow/core/database.h"
@@ -156,13 +159,14 @@ struct LocalizationOptions {
   // keyframe's pose stands when the query holds fewer than this fraction of its inliers there
   // (its place is the keyframe's, the copy covering only part of it).
   double guided_repeat_ratio = 0.0;
-  // The repeat check for plain poses too (needs guided_repeat_check; 0 = off): a query's best
-  // pose from plain matching with fewer inliers than this is checked as a guided pose is (its
-  // keyframe queried against its own map, then, with guided_repeat_ratio, the query matched at
-  // the copy), and when it repeats elsewhere every pose of the query is refused. On a floor that
-  // holds a copy of a part of itself, a query whose own place is not among its candidates can
-  // verify at the copy by plain matching alone (the held-out photos' desert floor, 117 mm away).
-  // The same cost as the guided check, for each such pose.
+  // The repeat check for plain poses too (needs guided_repeat_check, whose candidates it uses;
+  // 0 = off): a query's best pose from plain matching (with consensus; without, its first
+  // verified pose) with fewer inliers than this is checked as a guided pose is: its keyframe
+  // queried against its own map, then the query matched at the copy (plain_repeat_ratio). When it
+  // repeats elsewhere every pose of the query is refused. On a floor that holds a copy of a part
+  // of itself, a query whose own place is not among its candidates can verify at the copy by
+  // plain matching alone (the held-out photos' desert floor, 117 mm away). The same cost as the
+  // guided check, for each such pose. At or below pose.min_inliers it never acts.
   int plain_repeat_below = 0;
   // Its contest at the copy: the pose is refused when the query, matched at the copy, holds at
   // least this fraction of the inliers that it holds at its keyframe, both counted by guided
@@ -178,8 +182,9 @@ struct LocalizationOptions {
   // fix does (0: any fix stands). On the held-out photographs the first pass's weak fixes
   // included a copy of a floor turned 180 degrees (10 inliers; docs/RESULTS.md).
   int escalate_min_inliers = 0;
-  // Guided matching of the query itself (not a config key): FirstPassOptions and
-  // CombinedViewOptions turn it off. The repeat checks still match guided where they must.
+  // Guided matching of the query itself (not a config key): FirstPassOptions, and
+  // CombinedViewOptions unless guided_combined, turn it off. The repeat checks still match guided
+  // where they must.
   bool guided = true;
 
   void Check() const;
@@ -240,6 +245,27 @@ Localization EscalatedFix(bool escalate, const LocalizationOptions& options,
                           const std::function<Localization()>& full, bool* escalated,
                           EscalationBackoff* backoff = nullptr);
 
+// The repeat checks' finding for each keyframe asked about (LocalizationOptions::
+// guided_repeat_check, plain_repeat_below): the poses at which it verified elsewhere in its own
+// map, its copies. They depend on the map alone, so a map keeps them across queries
+// (MapAccess::repeats) and clears them whenever it changes. Thread-safe.
+class RepeatCache {
+ public:
+  struct Copy {
+    uint32_t image = 0;     // the map image it verified with
+    PoseEstimate estimate;  // that verification (the keyframe as the query)
+  };
+  // The copies of `image`: found with `find` the first time (outside the lock), then kept.
+  std::shared_ptr<const std::vector<Copy>> Get(uint32_t image,
+                                               const std::function<std::vector<Copy>()>& find);
+  void Clear();
+  size_t size() const;  // keyframes whose copies are kept
+
+ private:
+  mutable std::mutex mutex_;
+  std::unordered_map<uint32_t, std::shared_ptr<const std::vector<Copy>>> copies_;
+};
+
 // Where the localizer finds a database image's keypoints and pose.
 struct MapAccess {
   std::function<std::vector<Keypoint>(uint32_t image)> keypoints;
@@ -254,6 +280,9 @@ struct MapAccess {
   // retrieval for such a query: its `k` best, best first, without the image `self` itself.
   std::function<BowVector(uint32_t image)> query_of;
   std::function<std::vector<QueryResult>(const BowVector& query, uint32_t self, size_t k)> retrieve;
+  // Optional: where the repeat checks keep each keyframe's copies between queries (without it
+  // they are found again for every pose checked). Its owner clears it when the map changes.
+  RepeatCache* repeats = nullptr;
 };
 
 // Matches of two images' descriptors (CV_8U: Hamming; CV_32F: L2): mutual nearest neighbours
