@@ -188,6 +188,21 @@ TEST(Localizer, TrustedVerificationLocalizesRevisitsAndRefusesARepeatedFloor) {
   EXPECT_TRUE(paper.Localize(img).success);
 }
 
+// The scene's database as a map, and with `copy` >= 0 that database place again 0.3 m away (a
+// floor that repeats a place).
+std::unique_ptr<Localizer> SceneMap(const LocalizerOptions& opt, int copy) {
+  const Scene& s = TheScene();
+  auto loc = std::make_unique<Localizer>(s.vocabulary, "test.gtvoc", opt);
+  for (size_t i = 0; i < s.db_images.size(); ++i)
+    loc->Add(loc->Process(s.db_images[i]), 1000 + static_cast<int64_t>(i), s.db_poses[i]);
+  if (copy >= 0) {
+    const size_t d = static_cast<size_t>(copy);
+    loc->Add(loc->Process(s.db_images[d]), 5000,
+             Pose2D{s.db_poses[d].x + 0.3, s.db_poses[d].y, s.db_poses[d].theta});
+  }
+  return loc;
+}
+
 // Guided matching's repeat check through the Localizer (the node's map): a keyframe whose image
 // the map also holds elsewhere (a copy 0.3 m away) gives no guided pose, since queried against
 // its own map it verifies with the copy; without the copy the guided pose stands.
@@ -201,14 +216,7 @@ TEST(Localizer, TheRepeatCheckRefusesGuidedPosesFromAKeyframeWithACopy) {
   o.retrieval.verification.max_conflict_ratio = 0.0;  // first verified: the copy is not compared
   const size_t d = 3;                                 // revisit 1 is database place 3
   auto map = [&](const LocalizerOptions& opt, bool copy) {
-    auto loc = std::make_unique<Localizer>(s.vocabulary, "test.gtvoc", opt);
-    for (size_t i = 0; i < s.db_images.size(); ++i)
-      loc->Add(loc->Process(s.db_images[i]), 1000 + static_cast<int64_t>(i), s.db_poses[i]);
-    if (copy) {
-      loc->Add(loc->Process(s.db_images[d]), 5000,
-               Pose2D{s.db_poses[d].x + 0.3, s.db_poses[d].y, s.db_poses[d].theta});
-    }
-    return loc;
+    return SceneMap(opt, copy ? static_cast<int>(d) : -1);
   };
   // Every candidate's ratio-test matches one inlier short: only guided matching gives a pose.
   const auto plain = map(o, false);
@@ -253,14 +261,7 @@ TEST(Localizer, TheRepeatCheckOfPlainPosesRefusesAPlaceTheMapHoldsTwice) {
   o.retrieval.verification.plain_repeat_below = 1000000;  // every plain pose is checked
   const size_t d = 3;                                     // revisit 1 is database place 3
   auto map = [&](const LocalizerOptions& opt, bool copy) {
-    auto loc = std::make_unique<Localizer>(s.vocabulary, "test.gtvoc", opt);
-    for (size_t i = 0; i < s.db_images.size(); ++i)
-      loc->Add(loc->Process(s.db_images[i]), 1000 + static_cast<int64_t>(i), s.db_poses[i]);
-    if (copy) {
-      loc->Add(loc->Process(s.db_images[d]), 5000,
-               Pose2D{s.db_poses[d].x + 0.3, s.db_poses[d].y, s.db_poses[d].theta});
-    }
-    return loc;
+    return SceneMap(opt, copy ? static_cast<int>(d) : -1);
   };
   const auto single = map(o, false);
   const ProcessedImage img = single->Process(s.revisits[1]);
