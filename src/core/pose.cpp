@@ -649,7 +649,7 @@ std::vector<RepeatCache::Copy> FindCopies(uint32_t image, const MapAccess& map,
     if (std::hypot(p.x - own.x, p.y - own.y) <= o.consensus_distance &&
         std::abs(WrapAngle(p.theta - own.theta)) <= o.consensus_angle)
       continue;
-    e.inlier_indices.clear();
+    std::vector<int>().swap(e.inlier_indices);  // kept: only the pose and the counts
     copies.push_back({r.image, std::move(e)});
   }
   return copies;

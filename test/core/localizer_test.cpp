@@ -271,13 +271,18 @@ TEST(Localizer, TheRepeatCheckOfPlainPosesRefusesAPlaceTheMapHoldsTwice) {
   EXPECT_LT(1000 * std::hypot(kept.estimate.floor_from_query.x - t.x,
                               kept.estimate.floor_from_query.y - t.y),
             4.8);
-  // The copy added to the same map: the copies its checks kept (none) go with the change.
-  single->Add(single->Process(s.db_images[d]), 5000,
-              Pose2D{s.db_poses[d].x + 0.3, s.db_poses[d].y, s.db_poses[d].theta});
+  // The copy added to the same map: the copies its checks kept (none) go with the change. (The
+  // pose is keyframe d's, which ranks before its identical copy: lower ids first on a tie.)
+  const uint32_t copy_id =
+      single->Add(single->Process(s.db_images[d]), 5000,
+                  Pose2D{s.db_poses[d].x + 0.3, s.db_poses[d].y, s.db_poses[d].theta});
   const Localization refused = single->Localize(img);
   EXPECT_FALSE(refused.success);
   EXPECT_NE(refused.reason.find("repeat: keyframe"), std::string::npos) << refused.reason;
   EXPECT_NE(refused.reason.find("plain_repeat_ratio 0.9"), std::string::npos) << refused.reason;
+  // The copy retired: the copies kept (the copy) go with it, and the pose stands again.
+  ASSERT_TRUE(single->Retire(copy_id));
+  EXPECT_TRUE(single->Localize(img).success);
   EXPECT_FALSE(map(o, true)->Localize(img).success);  // a map made with the copy alike
   o.retrieval.verification.plain_repeat_below = 0;    // without it, the first verified pose
   EXPECT_TRUE(map(o, true)->Localize(img).success);

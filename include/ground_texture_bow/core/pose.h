@@ -247,8 +247,10 @@ Localization EscalatedFix(bool escalate, const LocalizationOptions& options,
 
 // The repeat checks' finding for each keyframe asked about (LocalizationOptions::
 // guided_repeat_check, plain_repeat_below): the poses at which it verified elsewhere in its own
-// map, its copies. They depend on the map alone, so a map keeps them across queries
-// (MapAccess::repeats) and clears them whenever it changes. Thread-safe.
+// map, its copies. They depend on the map, the image size and the verification options (not on
+// the query, nor on `guided`), so a map keeps them across queries (MapAccess::repeats) and
+// clears them whenever it changes; one cache serves one image size and one set of options (a
+// Localizer's, an evaluation's preset). Thread-safe.
 class RepeatCache {
  public:
   struct Copy {
