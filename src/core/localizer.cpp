@@ -248,9 +248,9 @@ size_t Localizer::UpdateKeyframePoses(const std::vector<KeyframePose>& poses) {
       ++applied;
     }
     std::unique_lock<std::shared_mutex> lock(mutex_);
-    repeats_.Clear();  // the map changes: the copies its repeat checks kept too
     if (generation_ != generation || moved_ != old) continue;  // a reset or load: again
     if (applied > 0) {
+      repeats_.Clear();  // the poses move: the copies its repeat checks kept too
       moved_ = std::move(table);
       poses_optimised_ = true;
     }
@@ -464,9 +464,9 @@ void Localizer::Reset() {
 
 bool Localizer::Retire(uint32_t id) {
   std::unique_lock<std::shared_mutex> lock(mutex_);
+  if (id >= keyframes_->size() || !database_->Remove(id)) return false;
   repeats_.Clear();  // the map changes: the copies its repeat checks kept too
-  if (id >= keyframes_->size()) return false;
-  return database_->Remove(id);
+  return true;
 }
 
 void Localizer::SetMetersPerPixel(double meters_per_pixel) {

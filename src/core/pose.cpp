@@ -624,11 +624,9 @@ PoseEstimate VerifyGuided(const QueryResult& r, const BowVector& query, const Ma
   return est;
 }
 
-// The repeat check (LocalizationOptions::guided_repeat_check) of `query`'s guided estimate `est`
-// with map image `image`: empty when the image, queried against its own map, verifies nowhere else
-// (or, with guided_repeat_ratio, where the query itself holds too few inliers); else why not.
-// A plain estimate (`plain`, the check of LocalizationOptions::plain_repeat_below) contests the
-// copy with its own guided matches, counted as the copy's are; `ratio` is the check's.
+// The copies of map image `image`: where it verifies (plainly, then guided) among its first
+// guided_repeat_candidates candidates when queried against its own map, beyond the consensus
+// distance or angle of its own pose.
 std::vector<RepeatCache::Copy> FindCopies(uint32_t image, const MapAccess& map,
                                           const ImageGeometry& geometry,
                                           const LocalizationOptions& o) {
@@ -655,6 +653,11 @@ std::vector<RepeatCache::Copy> FindCopies(uint32_t image, const MapAccess& map,
   return copies;
 }
 
+// The repeat check (LocalizationOptions::guided_repeat_check) of `query`'s guided estimate `est`
+// with map image `image`: empty when the image has no copy (FindCopies) or, with `ratio` > 0,
+// when the query holds fewer than `ratio` times its inliers at each copy; else why not.
+// A plain estimate (`plain`, the check of LocalizationOptions::plain_repeat_below) contests the
+// copy with its own guided matches, counted as the copy's are.
 std::string RepeatsElsewhere(const BowVector& query, const PoseEstimate& est, uint32_t image,
                              const MapAccess& map, const ImageGeometry& geometry,
                              const LocalizationOptions& o, double ratio, bool plain) {
@@ -663,7 +666,7 @@ std::string RepeatsElsewhere(const BowVector& query, const PoseEstimate& est, ui
         "guided_repeat_check (and plain_repeat_below): the map gives no query of its own images "
         "(MapAccess::query_of, retrieve)");
   }
-  // The keyframe's copies depend on the map alone: kept by the map's cache when it has one.
+  // The keyframe's copies do not depend on the query: kept by the map's cache when it has one.
   std::shared_ptr<const std::vector<RepeatCache::Copy>> copies =
       map.repeats != nullptr
           ? map.repeats->Get(image, [&] { return FindCopies(image, map, geometry, o); })

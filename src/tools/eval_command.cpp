@@ -221,7 +221,6 @@ MaintenanceResult Maintain(const EvalArgs& a, const RetrievalConfig& c, const Bo
     bar.Finish();
     ms.keyframes_after = db->size();
     mr.sessions.push_back(ms);
-    if (map.repeats != nullptr) map.repeats->Clear();
   }
   return mr;
 }

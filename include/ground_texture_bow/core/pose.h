@@ -166,7 +166,8 @@ struct LocalizationOptions {
   // repeats elsewhere every pose of the query is refused. On a floor that holds a copy of a part
   // of itself, a query whose own place is not among its candidates can verify at the copy by
   // plain matching alone (the held-out photos' desert floor, 117 mm away). The same cost as the
-  // guided check, for each such pose. At or below pose.min_inliers it never acts.
+  // guided check: a keyframe's copies are found once per map state (MapAccess::repeats), then one
+  // guided match per copy and pose. At or below pose.min_inliers it never acts.
   int plain_repeat_below = 0;
   // Its contest at the copy: the pose is refused when the query, matched at the copy, holds at
   // least this fraction of the inliers that it holds at its keyframe, both counted by guided
