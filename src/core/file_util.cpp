@@ -16,6 +16,7 @@
 #include <random>
 #include <sstream>
 #include <stdexcept>
+#include <thread>
 
 namespace fs = std::filesystem;
 
@@ -140,7 +141,10 @@ void AtomicFileWriter::WriteOut(const char* p, size_t size) {
     sigemptyset(&xfsz);
     sigaddset(&xfsz, SIGXFSZ);
     pthread_sigmask(SIG_BLOCK, &xfsz, &previous);
-    const ssize_t n = ::write(fd_, p + done, size - done);
+    // Paced, a block at a time, the pause after each (a large piece would otherwise go out in
+    // one burst).
+    const size_t want = pace_ > 0 ? std::min(size - done, kBlock) : size - done;
+    const ssize_t n = ::write(fd_, p + done, want);
     const int error = errno;
     if (n < 0 && error == EFBIG) {
       const timespec no_wait{0, 0};
@@ -153,7 +157,20 @@ void AtomicFileWriter::WriteOut(const char* p, size_t size) {
       Fail(std::strerror(error));
     }
     done += static_cast<size_t>(n);
+    out_ += static_cast<size_t>(n);
+    if (pace_ > 0) {
+      const auto due =
+          pace_start_ + std::chrono::duration_cast<std::chrono::steady_clock::duration>(
+                            std::chrono::duration<double>((out_ - paced_from_) / pace_));
+      if (due > std::chrono::steady_clock::now()) std::this_thread::sleep_until(due);
+    }
   }
+}
+
+void AtomicFileWriter::Pace(double bytes_per_second) {
+  pace_ = bytes_per_second > 0 ? bytes_per_second : 0;
+  paced_from_ = out_;
+  pace_start_ = std::chrono::steady_clock::now();
 }
 
 void AtomicFileWriter::WriteBehind(size_t offset, size_t size, bool drop) {

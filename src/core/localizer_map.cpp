@@ -324,7 +324,7 @@ void Localizer::CheckHeader(const MapFileInfo& info, const std::string& source,
   }
 }
 
-SaveStats Localizer::Save(const std::filesystem::path& path) const {
+SaveStats Localizer::Save(const std::filesystem::path& path, bool paced) const {
   using Clock = std::chrono::steady_clock;
   auto ms = [](Clock::time_point a, Clock::time_point b) {
     return std::chrono::duration<double, std::milli>(b - a).count();
@@ -417,6 +417,9 @@ SaveStats Localizer::Save(const std::filesystem::path& path) const {
     std::memcpy(head + 16, fixed, sizeof(fixed));
 
     AtomicFileWriter file(path);
+    // Paced (LocalizerOptions::save_rate_mb): at full speed the writer's copies into the page
+    // cache slow the queries and insertions beside it (RESULTS.md "Save stalls").
+    if (paced) file.Pace(options_.save_rate_mb * 1e6);
     file.Write(head, kFixedHead);
     file.Write(h.buffer());
     PadFile(&file, l.offset[kIndexHeader]);

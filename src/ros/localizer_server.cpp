@@ -138,16 +138,16 @@ LocalizerServer::~LocalizerServer() {
   slot_cv_.notify_all();
   if (worker_.joinable()) worker_.join();
   autosave_timer_.stop();
-  if (options_.save_on_shutdown) AutoSave("shutdown");
+  if (options_.save_on_shutdown) AutoSave("shutdown", false);  // nothing left to slow down
 }
 
-void LocalizerServer::AutoSave(const char* why) {
+void LocalizerServer::AutoSave(const char* why, bool paced) {
   if (options_.autosave_path.empty() || mode_.load() == Mode::kLocalization) return;  // read-only
   std::lock_guard<std::mutex> one(autosave_mutex_);
   const uint64_t changes = changes_.load();
   if (changes == saved_changes_.load() || localizer_->size() == 0) return;
   try {
-    const gtbow::SaveStats s = localizer_->Save(options_.autosave_path);
+    const gtbow::SaveStats s = localizer_->Save(options_.autosave_path, paced);
     saved_changes_ = changes;
     autosaves_++;
     last_autosave_failed_ = false;

@@ -142,6 +142,7 @@ ServerOptions ReadOptions(const ros::NodeHandle& pnh) {
   pnh.param("save_on_shutdown", o.save_on_shutdown, o.save_on_shutdown);
   pnh.param("threads", o.core.threads, o.core.threads);
   pnh.param("keep_descriptors", o.core.keep_descriptors, o.core.keep_descriptors);
+  pnh.param("save_rate_mb", o.core.save_rate_mb, o.core.save_rate_mb);
   pnh.param("use_tf", o.use_tf, o.use_tf);
   pnh.param("tf_timeout", o.tf_timeout, o.tf_timeout);
   pnh.param("keyframe_min_distance", o.mapper.keyframe_min_distance,

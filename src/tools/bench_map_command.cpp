@@ -81,6 +81,7 @@ struct BenchMapArgs {
   std::string query_split;
   size_t queries = 100;
   int threads = 2;
+  double save_rate_mb = LocalizerOptions().save_rate_mb;  // the node's default
   std::string out = "build/bench_map";
   std::string map_dir;  // empty: out
   std::string cache = DefaultCacheDir().string();
@@ -364,6 +365,7 @@ VariantResult RunVariant(const BenchMapArgs& a, const Variant& v, const Dataset&
   lo.meters_per_pixel = geo.meters_per_pixel;
   lo.threads = a.threads;
   lo.keep_descriptors = v.keep_descriptors;
+  lo.save_rate_mb = a.save_rate_mb;
   // The synthetic keyframes' encoder: the Localizer's own is private, and one made from the
   // same vocabulary and options encodes alike.
   const BowEncoder synthetic_encoder(*vocab, c.bow);
@@ -570,6 +572,7 @@ std::string ToJson(const BenchMapArgs& a, const std::vector<VariantResult>& resu
   j.Key("dataset").Str(a.dataset).Key("query_split").Str(qsplit).Key("queries").Int(n_queries);
   j.Key("real_keyframes_available").Int(real_available).Key("threads").Int(a.threads);
   j.Key("seed").Int(static_cast<long long>(a.seed));
+  j.Key("save_rate_mb").Num(a.save_rate_mb);
   j.Key("kernels").Open('{').Key("hamming").Str(ActiveHammingKernelName());
   j.Key("l2_bytes").Str(ActiveByteDistanceKernelName()).Close('}');
   j.Key("synthetic_note")
@@ -636,7 +639,7 @@ std::string Percent(size_t part, size_t whole) {
 }
 
 std::string ToMarkdown(const std::vector<VariantResult>& results, const std::string& qsplit,
-                       size_t real_available, size_t n_queries) {
+                       size_t real_available, size_t n_queries, double save_rate_mb) {
   std::ostringstream m;
   char b[512];
   m << "## Warehouse maps through the node (`gtbow bench-map`)\n\n";
@@ -658,7 +661,12 @@ std::string ToMarkdown(const std::vector<VariantResult>& results, const std::str
        "cache. Localization is correct within "
     << kSuccessMeters * 1000 << " mm and " << kSuccessRadians * 180 / M_PI
     << " degrees of the ground truth (as `gtbow eval`). The loaded map must answer every query "
-       "(top-K ids, scores and the fix) exactly as the map did before the save. Kernels: "
+       "(top-K ids, scores and the fix) exactly as the map did before the save. The save's "
+       "writer is paced at "
+    << (save_rate_mb > 0
+            ? std::to_string(static_cast<long long>(std::lround(save_rate_mb))) + " MB/s"
+            : std::string("no rate (unpaced)"))
+    << " (`LocalizerOptions::save_rate_mb`, the node's `~save_rate_mb`). Kernels: "
     << ActiveSimdKernels() << ".\n\n";
   for (const VariantResult& r : results) {
     const size_t n = r.real + r.synthetic;
@@ -787,10 +795,11 @@ void RunBenchMap(const BenchMapArgs& a) {
     }
     if (!a.keep_map) fs::remove(map_file);
   }
-  WriteBenchResults(out, "bench_map",
-                    ToJson(a, results, qsplit, std::min(real_available, a.keyframes), n_queries),
-                    ToMarkdown(results, qsplit, std::min(real_available, a.keyframes), n_queries),
-                    "plot_bench_map.py", a.no_plot);
+  WriteBenchResults(
+      out, "bench_map",
+      ToJson(a, results, qsplit, std::min(real_available, a.keyframes), n_queries),
+      ToMarkdown(results, qsplit, std::min(real_available, a.keyframes), n_queries, a.save_rate_mb),
+      "plot_bench_map.py", a.no_plot);
   // The loaded map must answer exactly as the map did before the save (README, docs/RESULTS.md):
   // the results are written first (the differences are listed in bench_map.md), then the run
   // fails.
@@ -839,6 +848,10 @@ void RegisterBenchMap(CLI::App& app) {
                   "Localizer threads (LocalizerOptions::threads), also for extraction and "
                   "synthesis")
       ->check(CLI::Range(1, 64))
+      ->capture_default_str();
+  cmd->add_option("--save-rate-mb", a->save_rate_mb,
+                  "Pace of the save's writer, MB/s (LocalizerOptions::save_rate_mb; 0: unpaced)")
+      ->check(CLI::NonNegativeNumber)
       ->capture_default_str();
   cmd->add_option("-o,--out", a->out, "Output directory: bench_map.json, bench_map.md, .png")
       ->capture_default_str();

@@ -105,7 +105,7 @@ void Convert(const ConvertArgs& a) {
   }
   const auto loc = LocalizerFor(a.in, info, a.vocab, !a.drop_descriptors);
   loc->ImportVersion1(a.in);
-  loc->Save(a.out);
+  loc->Save(a.out, /*paced=*/false);
   PrintInfo(a.out);
 }
 

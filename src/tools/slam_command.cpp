@@ -285,7 +285,7 @@ void RunSlam(const SlamArgs& a) {
   }
   loc.SetPoseFrame(a.map_frame);
   const fs::path map_path = fs::path(a.out) / "map.gtmap";
-  loc.Save(map_path);
+  loc.Save(map_path, /*paced=*/false);
   // The closures: correct when the match keyframe's true pose composed with the relative pose
   // is the query's true pose within 4.8 mm and 1.5 degrees.
   std::string cl =

@@ -11,6 +11,7 @@
 #include <cstdio>
 #include <cstring>
 #include <fstream>
+#include <limits>
 #include <map>
 #include <optional>
 #include <sstream>
@@ -440,6 +441,32 @@ TEST_F(LocalizerFiles, SavedMapsLoadAndAnswerIdentically) {
   EXPECT_EQ(k7->map_from_camera.theta, k7_before->map_from_camera.theta);
   // Query by keyframe id works on a loaded map (descriptors were saved).
   EXPECT_EQ(fresh.QueryKeyframe(7, 3, false)[0].id, by_id_before);
+}
+
+// A paced save (the node's ~save_map and autosave, beside its localization) writes the same
+// file as an unpaced one (the save at shutdown, the tools) and takes at least the paced time
+// (only that lower bound is checked: a slow disk or a busy core makes it longer, never
+// shorter). The options refuse a negative or non-finite pace.
+TEST_F(LocalizerFiles, PacedSavesWriteTheSameMapAtThePace) {
+  const auto loc = Mapped(true);
+  const auto unpaced = dir() / "unpaced.gtmap";
+  loc->Save(unpaced, /*paced=*/false);
+  const std::string bytes = ReadFile(unpaced);
+  LocalizerOptions o = Options();
+  o.save_rate_mb = static_cast<double>(bytes.size()) / 1e6 / 0.2;  // the whole file in 0.2 s
+  Localizer slow(TheScene().vocabulary, "test.gtvoc", o);
+  slow.Load(unpaced);
+  const auto paced = dir() / "paced.gtmap";
+  const auto start = std::chrono::steady_clock::now();
+  slow.Save(paced);
+  EXPECT_GE(std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count(), 0.2);
+  EXPECT_EQ(ReadFile(paced), bytes);
+  o.save_rate_mb = -1;
+  EXPECT_THROW(o.Check(), std::invalid_argument);
+  o.save_rate_mb = std::numeric_limits<double>::infinity();
+  EXPECT_THROW(o.Check(), std::invalid_argument);
+  o.save_rate_mb = 0;
+  EXPECT_NO_THROW(o.Check());
 }
 
 // A node that learns its scale from the camera: set while the map is empty, saved with the

@@ -3,6 +3,7 @@
 // naming the path and the reason.
 #pragma once
 
+#include <chrono>
 #include <cstddef>
 #include <filesystem>
 #include <initializer_list>
@@ -47,6 +48,10 @@ class AtomicFileWriter {
   // drops them from the page cache. Buffered bytes in that range are written out first, which
   // fails as Write does; the rest is best effort and never fails.
   void WriteBehind(size_t offset, size_t size, bool drop = true);
+  // Paces the writes from now on: after each block written out, the writer sleeps for as long as
+  // it is ahead of `bytes_per_second` since this call (0: no pacing, the default). For a save of
+  // gigabytes beside work that must not wait (the map writer; RESULTS.md "Save stalls").
+  void Pace(double bytes_per_second);
   void Commit();
   // Commit, and a read-only mapping of the bytes written (taken before the rename).
   std::shared_ptr<const MappedFile> CommitAndMap();
@@ -62,6 +67,10 @@ class AtomicFileWriter {
   size_t written_ = 0;
   std::unique_ptr<char[]> buffer_;  // kBlock bytes, made on the first small piece
   size_t buffered_ = 0;             // the last buffered_ bytes of written_
+  size_t out_ = 0;                  // bytes written out to the file
+  double pace_ = 0;                 // bytes per second, 0: unpaced
+  size_t paced_from_ = 0;           // out_ when pacing began
+  std::chrono::steady_clock::time_point pace_start_;
 };
 
 // A whole file mapped read-only into memory (mmap, pages read on first touch and shared with

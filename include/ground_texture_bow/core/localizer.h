@@ -45,6 +45,12 @@ struct LocalizerOptions {
   // (verification.matches: descriptors); without them such verification uses word pairs
   // (effective_matches()). Warehouse maps drop them to fit (docs/RESULTS.md, issue 17).
   bool keep_descriptors = true;
+  // The pace of Save's writer, MB/s (0: as fast as the disk allows). A save of a warehouse map
+  // (gigabytes) written at full speed slows the queries and insertions running beside it on a
+  // small computer; paced, they keep their speed and the save takes longer (6.4 GB: about 32 s
+  // at 200 MB/s). Slower disks than the pace are not slowed further. docs/RESULTS.md, "Save
+  // stalls".
+  double save_rate_mb = 200;
 
   // Throws std::invalid_argument naming the first bad field.
   void Check() const;
@@ -236,7 +242,9 @@ class Localizer {
   // and 64-byte keyframe records, with a checksum per 64 MB verified at Load on all cores; then
   // each keyframe's keypoints (StoredKeypoints, 8 bytes each) and, with keep_descriptors, its
   // descriptors, with a checksum per keyframe checked when the keyframe is read.
-  SaveStats Save(const std::filesystem::path& path) const;
+  // `paced`: written at options' save_rate_mb (a save beside the robot's work); false writes as
+  // fast as the disk allows (a save at shutdown, the command-line tools).
+  SaveStats Save(const std::filesystem::path& path, bool paced = true) const;
   // Replaces the map with a saved one, memory-mapped (nothing is copied into the heap; new
   // keyframes go to a growable tail). Throws std::runtime_error naming the file when it is
   // damaged, of another version (a version-1 map: the message says how to convert it), or made

@@ -109,7 +109,7 @@ class LocalizerServer {
   // Saves the map to ~autosave_path when keyframes were added since the last save (never an
   // empty map, never in localization mode); `why` goes into the log. Errors are logged and
   // counted, never thrown.
-  void AutoSave(const char* why);
+  void AutoSave(const char* why, bool paced = true);  // paced: LocalizerOptions::save_rate_mb
   void CompressedCallback(const sensor_msgs::CompressedImageConstPtr& msg);
   void Enqueue(Pending p);
   void WorkerLoop();
