@@ -9,6 +9,7 @@
 
 #include <algorithm>
 #include <cerrno>
+#include <cmath>
 #include <cstdint>
 #include <cstdlib>
 #include <cstring>
@@ -141,9 +142,9 @@ void AtomicFileWriter::WriteOut(const char* p, size_t size) {
     sigemptyset(&xfsz);
     sigaddset(&xfsz, SIGXFSZ);
     pthread_sigmask(SIG_BLOCK, &xfsz, &previous);
-    // Paced, a block at a time, the pause after each (a large piece would otherwise go out in
-    // one burst).
-    const size_t want = pace_ > 0 ? std::min(size - done, kBlock) : size - done;
+    // Paced, a block at a time up to the file's next block boundary, the pause after each (a
+    // large piece would otherwise go out in one burst).
+    const size_t want = pace_ > 0 ? std::min(size - done, kBlock - out_ % kBlock) : size - done;
     const ssize_t n = ::write(fd_, p + done, want);
     const int error = errno;
     if (n < 0 && error == EFBIG) {
@@ -158,19 +159,41 @@ void AtomicFileWriter::WriteOut(const char* p, size_t size) {
     }
     done += static_cast<size_t>(n);
     out_ += static_cast<size_t>(n);
-    if (pace_ > 0) {
-      const auto due =
-          pace_start_ + std::chrono::duration_cast<std::chrono::steady_clock::duration>(
-                            std::chrono::duration<double>((out_ - paced_from_) / pace_));
-      if (due > std::chrono::steady_clock::now()) std::this_thread::sleep_until(due);
-    }
+    if (pace_ > 0) PaceAfterWrite();
   }
 }
 
-void AtomicFileWriter::Pace(double bytes_per_second) {
-  pace_ = bytes_per_second > 0 ? bytes_per_second : 0;
+void AtomicFileWriter::Pace(double bytes_per_second, const std::atomic<bool>* hurry) {
+  pace_ = bytes_per_second > 0 && std::isfinite(bytes_per_second) ? bytes_per_second : 0;
+  hurry_ = hurry;
   paced_from_ = out_;
   pace_start_ = std::chrono::steady_clock::now();
+}
+
+void AtomicFileWriter::PaceAfterWrite() {
+  using Clock = std::chrono::steady_clock;
+  using Seconds = std::chrono::duration<double>;
+  const double slack = static_cast<double>(kBlock) / pace_;  // one block's time
+  for (;;) {
+    if (hurry_ != nullptr && hurry_->load()) {
+      pace_ = 0;
+      return;
+    }
+    const Clock::time_point now = Clock::now();
+    // Seconds the writer is ahead of the pace (negative: behind), as a double: no overflow of
+    // the clock's integer ticks at any rate.
+    const double ahead = static_cast<double>(out_ - paced_from_) / pace_ -
+                         std::chrono::duration_cast<Seconds>(now - pace_start_).count();
+    if (ahead < -slack) {
+      // Behind by more than a block: restart the reckoning here, a block's time in hand, so that
+      // the time behind is not made up in a burst.
+      paced_from_ = out_;
+      pace_start_ = now - std::chrono::duration_cast<Clock::duration>(Seconds(slack));
+      return;
+    }
+    if (ahead <= 0) return;
+    std::this_thread::sleep_for(Seconds(std::min(ahead, 0.05)));
+  }
 }
 
 void AtomicFileWriter::WriteBehind(size_t offset, size_t size, bool drop) {

@@ -39,8 +39,8 @@ void LocalizerOptions::Check() const {
     throw std::invalid_argument("meters_per_pixel must be positive and finite");
   }
   if (threads < 1 || threads > 64) throw std::invalid_argument("threads must be in 1..64");
-  if (!(save_rate_mb >= 0.0) || !std::isfinite(save_rate_mb)) {
-    throw std::invalid_argument("save_rate_mb must be 0 (unpaced) or a positive number of MB/s");
+  if (!(save_rate_mb == 0.0 || save_rate_mb >= 1.0) || !std::isfinite(save_rate_mb)) {
+    throw std::invalid_argument("save_rate_mb must be 0 (unpaced) or at least 1 MB/s");
   }
 }
 

@@ -12,6 +12,8 @@ int main(int argc, char** argv) {
     ros::AsyncSpinner spinner(3);
     spinner.start();
     ros::waitForShutdown();
+    // The spinner, destroyed first, waits for a ~save_map in progress: unpaced from here.
+    server.StopPacingSaves();
   } catch (const std::exception& e) {
     ROS_FATAL("ground_texture_bow: cannot start: %s", e.what());
     return 1;

@@ -116,6 +116,9 @@ LocalizerServer::LocalizerServer(ros::NodeHandle nh, ros::NodeHandle pnh,
 }
 
 LocalizerServer::~LocalizerServer() {
+  // A paced save under way (~save_map, autosave) finishes unpaced, and so does the last one
+  // below: the shutdown waits for them.
+  StopPacingSaves();
   image_sub_.shutdown();
   compressed_sub_.shutdown();
   info_sub_.shutdown();

@@ -89,8 +89,9 @@ void ServerOptions::Check() const {
   try {
     core.Check();
   } catch (const std::invalid_argument& e) {
-    throw std::invalid_argument(std::string("parameter (~threads, ~meters_per_pixel, ~candidates, "
-                                            "~min_inliers or the preset): ") +
+    throw std::invalid_argument(std::string("parameter (~threads, ~meters_per_pixel, "
+                                            "~save_rate_mb, ~candidates, ~min_inliers or the "
+                                            "preset): ") +
                                 e.what());
   }
 }

@@ -632,6 +632,12 @@ std::string ToJson(const BenchMapArgs& a, const std::vector<VariantResult>& resu
   return j.str();
 }
 
+std::string FormatRate(double mb_per_s) {
+  char b[32];
+  std::snprintf(b, sizeof(b), "%g MB/s", mb_per_s);
+  return b;
+}
+
 std::string Percent(size_t part, size_t whole) {
   char b[32];
   std::snprintf(b, sizeof(b), "%.0f%%", 100.0 * part / std::max<size_t>(1, whole));
@@ -663,9 +669,7 @@ std::string ToMarkdown(const std::vector<VariantResult>& results, const std::str
     << " degrees of the ground truth (as `gtbow eval`). The loaded map must answer every query "
        "(top-K ids, scores and the fix) exactly as the map did before the save. The save's "
        "writer is paced at "
-    << (save_rate_mb > 0
-            ? std::to_string(static_cast<long long>(std::lround(save_rate_mb))) + " MB/s"
-            : std::string("no rate (unpaced)"))
+    << (save_rate_mb > 0 ? FormatRate(save_rate_mb) : std::string("no rate (unpaced)"))
     << " (`LocalizerOptions::save_rate_mb`, the node's `~save_rate_mb`). Kernels: "
     << ActiveSimdKernels() << ".\n\n";
   for (const VariantResult& r : results) {

@@ -3,11 +3,13 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <atomic>
 #include <chrono>
 #include <filesystem>
 #include <fstream>
 #include <random>
 #include <stdexcept>
+#include <thread>
 
 #include <gtest/gtest.h>
 
@@ -203,6 +205,40 @@ TEST_F(FileUtil, PacedWriterTakesAtLeastThePacedTime) {
   ASSERT_EQ(all.size(), 6 * kBlock);
   EXPECT_GE(seconds, 6.0 * kBlock / 60e6 - 0.005);
   EXPECT_EQ(ReadFile(f), all);
+}
+
+// A writer that fell behind (here: idle for 0.3 s after the pace began) does not make the time up
+// in a burst: of the 6 blocks that follow, the first finds it behind and restarts the reckoning
+// with one block's time in hand, and the other 4 take at least their paced time (without that
+// cap all 6 would go out at once, 0.3 s, 18 blocks' time, "in hand").
+TEST_F(FileUtil, PacedWriterDoesNotMakeUpTimeSpentBehind) {
+  constexpr size_t kBlock = AtomicFileWriter::kBlock;
+  AtomicFileWriter w(dir_ / "behind.bin");
+  w.Pace(60e6);
+  w.Write(std::string(kBlock, 'a'));  // in step
+  std::this_thread::sleep_for(std::chrono::milliseconds(300));
+  const auto start = std::chrono::steady_clock::now();
+  w.Write(std::string(6 * kBlock, 'b'));
+  const double seconds =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  EXPECT_GE(seconds, 4.0 * kBlock / 60e6);
+  w.Commit();
+}
+
+// Once the hurry flag is set (a node shutting down), the rest goes out unpaced.
+TEST_F(FileUtil, HurriedWriterStopsPacing) {
+  constexpr size_t kBlock = AtomicFileWriter::kBlock;
+  std::atomic<bool> hurry{false};
+  const fs::path f = dir_ / "hurried.bin";
+  AtomicFileWriter w(f);
+  w.Pace(20e6, &hurry);
+  w.Write(std::string(kBlock, 'a'));
+  EXPECT_TRUE(w.paced());
+  hurry = true;
+  w.Write(std::string(kBlock, 'b'));
+  EXPECT_FALSE(w.paced());
+  w.Commit();
+  EXPECT_EQ(ReadFile(f), std::string(kBlock, 'a') + std::string(kBlock, 'b'));
 }
 
 TEST_F(FileUtil, ReadFileNamesMissingPath) {

@@ -446,25 +446,32 @@ TEST_F(LocalizerFiles, SavedMapsLoadAndAnswerIdentically) {
 // A paced save (the node's ~save_map and autosave, beside its localization) writes the same
 // file as an unpaced one (the save at shutdown, the tools) and takes at least the paced time
 // (only that lower bound is checked: a slow disk or a busy core makes it longer, never
-// shorter). The options refuse a negative or non-finite pace.
+// shorter). The options refuse a negative, non-finite or too slow pace (under 1 MB/s).
 TEST_F(LocalizerFiles, PacedSavesWriteTheSameMapAtThePace) {
   const auto loc = Mapped(true);
   const auto unpaced = dir() / "unpaced.gtmap";
   loc->Save(unpaced, /*paced=*/false);
   const std::string bytes = ReadFile(unpaced);
   LocalizerOptions o = Options();
-  o.save_rate_mb = static_cast<double>(bytes.size()) / 1e6 / 0.2;  // the whole file in 0.2 s
+  // The whole file in 0.2 s, or longer at the slowest pace allowed (1 MB/s).
+  o.save_rate_mb = std::max(1.0, static_cast<double>(bytes.size()) / 1e6 / 0.2);
+  const double paced_seconds = static_cast<double>(bytes.size()) / (o.save_rate_mb * 1e6);
   Localizer slow(TheScene().vocabulary, "test.gtvoc", o);
   slow.Load(unpaced);
   const auto paced = dir() / "paced.gtmap";
   const auto start = std::chrono::steady_clock::now();
   slow.Save(paced);
-  EXPECT_GE(std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count(), 0.2);
+  EXPECT_GE(std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count(),
+            paced_seconds);
   EXPECT_EQ(ReadFile(paced), bytes);
   o.save_rate_mb = -1;
   EXPECT_THROW(o.Check(), std::invalid_argument);
   o.save_rate_mb = std::numeric_limits<double>::infinity();
   EXPECT_THROW(o.Check(), std::invalid_argument);
+  o.save_rate_mb = 0.5;  // a 6 GB map would take hours: refused
+  EXPECT_THROW(o.Check(), std::invalid_argument);
+  o.save_rate_mb = 1;
+  EXPECT_NO_THROW(o.Check());
   o.save_rate_mb = 0;
   EXPECT_NO_THROW(o.Check());
 }

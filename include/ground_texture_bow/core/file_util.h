@@ -3,6 +3,7 @@
 // naming the path and the reason.
 #pragma once
 
+#include <atomic>
 #include <chrono>
 #include <cstddef>
 #include <filesystem>
@@ -49,9 +50,14 @@ class AtomicFileWriter {
   // fails as Write does; the rest is best effort and never fails.
   void WriteBehind(size_t offset, size_t size, bool drop = true);
   // Paces the writes from now on: after each block written out, the writer sleeps for as long as
-  // it is ahead of `bytes_per_second` since this call (0: no pacing, the default). For a save of
-  // gigabytes beside work that must not wait (the map writer; RESULTS.md "Save stalls").
-  void Pace(double bytes_per_second);
+  // it is ahead of `bytes_per_second` (0: no pacing, the default). For a save of gigabytes
+  // beside work that must not wait (the map writer; RESULTS.md "The writer paced"). Time the
+  // writer spent behind (a busy core, a disk slower than the pace) is not made up at full speed
+  // afterwards: it may get ahead by one block's time at most. Once `*hurry` (optional, read after
+  // each block and every 50 ms of a pause) is true, the rest is written unpaced: a node that
+  // shuts down does not wait out a paced save.
+  void Pace(double bytes_per_second, const std::atomic<bool>* hurry = nullptr);
+  bool paced() const { return pace_ > 0; }  // false also once hurried
   void Commit();
   // Commit, and a read-only mapping of the bytes written (taken before the rename).
   std::shared_ptr<const MappedFile> CommitAndMap();
@@ -68,8 +74,10 @@ class AtomicFileWriter {
   std::unique_ptr<char[]> buffer_;  // kBlock bytes, made on the first small piece
   size_t buffered_ = 0;             // the last buffered_ bytes of written_
   size_t out_ = 0;                  // bytes written out to the file
-  double pace_ = 0;                 // bytes per second, 0: unpaced
-  size_t paced_from_ = 0;           // out_ when pacing began
+  void PaceAfterWrite();
+  double pace_ = 0;  // bytes per second, 0: unpaced
+  const std::atomic<bool>* hurry_ = nullptr;
+  size_t paced_from_ = 0;  // out_ at pace_start_
   std::chrono::steady_clock::time_point pace_start_;
 };
 

@@ -47,9 +47,9 @@ struct LocalizerOptions {
   bool keep_descriptors = true;
   // The pace of Save's writer, MB/s (0: as fast as the disk allows). A save of a warehouse map
   // (gigabytes) written at full speed slows the queries and insertions running beside it on a
-  // small computer; paced, they keep their speed and the save takes longer (6.4 GB: about 32 s
-  // at 200 MB/s). Slower disks than the pace are not slowed further. docs/RESULTS.md, "Save
-  // stalls".
+  // small computer; paced, they keep about their speed and the save takes longer (6.4 GB: about
+  // 32 s at 200 MB/s). Slower disks than the pace are not slowed further (docs/RESULTS.md, "The
+  // writer paced"). 0, or at least 1 MB/s.
   double save_rate_mb = 200;
 
   // Throws std::invalid_argument naming the first bad field.
@@ -245,6 +245,9 @@ class Localizer {
   // `paced`: written at options' save_rate_mb (a save beside the robot's work); false writes as
   // fast as the disk allows (a save at shutdown, the command-line tools).
   SaveStats Save(const std::filesystem::path& path, bool paced = true) const;
+  // From now on every save, the one being written included, goes unpaced: for a node that shuts
+  // down (its last save must not wait out a paced one of gigabytes).
+  void StopPacingSaves() const { stop_pacing_ = true; }
   // Replaces the map with a saved one, memory-mapped (nothing is copied into the heap; new
   // keyframes go to a growable tail). Throws std::runtime_error naming the file when it is
   // damaged, of another version (a version-1 map: the message says how to convert it), or made
@@ -339,8 +342,9 @@ class Localizer {
   int descriptor_cols_ = 0;           // the extractor's descriptors: 32 x CV_8U or 128 x CV_32F
   int descriptor_type_ = 0;
   std::unique_ptr<BowEncoder> encoder_;
-  mutable std::mutex save_mutex_;          // one Save at a time
-  mutable std::shared_mutex mutex_;        // guards database_, keyframes_ and generation_
+  mutable std::mutex save_mutex_;                 // one Save at a time
+  mutable std::atomic<bool> stop_pacing_{false};  // StopPacingSaves
+  mutable std::shared_mutex mutex_;               // guards database_, keyframes_ and generation_
   std::shared_ptr<BowDatabase> database_;  // guarded by mutex_ (a save keeps its own reference)
   std::unique_ptr<detail::KeyframeStore> keyframes_;  // by id; guarded by mutex_
   // The poses UpdateKeyframePoses gave, by id (x NaN: none), replaced as a whole (a save takes

@@ -63,6 +63,11 @@ class LocalizerServer {
   // cannot be loaded (the nodelet reports it and stays inert).
   LocalizerServer(ros::NodeHandle nh, ros::NodeHandle pnh, const ServerOptions& options);
   ~LocalizerServer();
+  // Saves from now on, the one under way included, go unpaced (~save_rate_mb): called as the
+  // node shuts down, before anything waits for a service call or timer that may be saving.
+  void StopPacingSaves() {
+    if (localizer_) localizer_->StopPacingSaves();
+  }
   LocalizerServer(const LocalizerServer&) = delete;
   LocalizerServer& operator=(const LocalizerServer&) = delete;
 
