@@ -412,8 +412,14 @@ void LocalizerServer::WorkerLoop() {
     Pending msg;
     {
       std::unique_lock<std::mutex> lock(slot_mutex_);
-      slot_cv_.wait(
-          lock, [this] { return stop_ || (static_cast<bool>(pending_) && !WaitsForCameraInfo()); });
+      while (!slot_cv_.wait_for(lock, std::chrono::milliseconds(100), [this] {
+        return stop_ || (static_cast<bool>(pending_) && !WaitsForCameraInfo());
+      })) {
+        // ROS shuts down (Ctrl-C, the nodelet manager's end): a paced save under way (a
+        // ~save_map call or an autosave, which the shutdown waits for) finishes unpaced. The
+        // destructor does the same, but a nodelet's runs only after its callbacks have ended.
+        if (!ros::ok()) StopPacingSaves();
+      }
       if (stop_) return;
       msg = std::move(pending_);
       pending_ = Pending();
