@@ -195,7 +195,7 @@ TEST(LargeMap, SavedAndLoadedAnswersAreThoseBeforeTheSave) {
   for (const ros::WallTime deadline = ros::WallTime::now() + ros::WallDuration(120.0);
        ros::WallTime::now() < deadline; ros::WallDuration(0.05).sleep()) {
     const auto arrays = diagnostics.Get();
-    const NodeStatus l = LatestStatus(arrays, "/localizer"), m = LatestStatus(arrays, "/mapper");
+    NodeStatus l = LatestStatus(arrays, "/localizer"), m = LatestStatus(arrays, "/mapper");
     if (l.seen && m.seen && l.values["rejected requests"] == rejected_after &&
         m.values["database size"] == std::to_string(n)) {
       break;
