@@ -418,7 +418,7 @@ SaveStats Localizer::Save(const std::filesystem::path& path, bool paced) const {
 
     AtomicFileWriter file(path);
     // Paced (LocalizerOptions::save_rate_mb): at full speed the writer's copies into the page
-    // cache slow the queries and insertions beside it (RESULTS.md "Save stalls").
+    // cache slow the queries and insertions beside it (RESULTS.md "The writer paced").
     if (paced) file.Pace(options_.save_rate_mb * 1e6, &stop_pacing_);
     file.Write(head, kFixedHead);
     file.Write(h.buffer());

@@ -10,14 +10,7 @@ TEST(BadInput, EachKindIsCountedReportedAndLosesNothing) {
   Collector<diagnostic_msgs::DiagnosticArray> diagnostics("/diagnostics");
   // Waits up to 10 s for a node's /diagnostics status that satisfies `pred`.
   auto wait_status = [&](const std::string& node, auto pred) {
-    const ros::WallTime end = ros::WallTime::now() + ros::WallDuration(10);
-    NodeStatus st;
-    while (ros::WallTime::now() < end) {
-      st = LatestStatus(diagnostics.Get(), node);
-      if (st.seen && pred(st)) break;
-      ros::WallDuration(0.2).sleep();
-    }
-    return st;
+    return WaitForStatus(diagnostics, node, pred, 10);
   };
   auto is_error = [](const NodeStatus& s) {
     return s.status.level == diagnostic_msgs::DiagnosticStatus::ERROR;

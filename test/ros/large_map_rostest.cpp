@@ -192,22 +192,21 @@ TEST(LargeMap, SavedAndLoadedAnswersAreThoseBeforeTheSave) {
   // and the mapper's every image (diagnostic_updater publishes once a second, later on a busy
   // machine; a fixed 1.5 s wait once read the status from before the refusal).
   const std::string rejected_after = std::to_string(rejected + 1);
-  for (const ros::WallTime deadline = ros::WallTime::now() + ros::WallDuration(120.0);
-       ros::WallTime::now() < deadline; ros::WallDuration(0.05).sleep()) {
-    const auto arrays = diagnostics.Get();
-    NodeStatus l = LatestStatus(arrays, "/localizer"), m = LatestStatus(arrays, "/mapper");
-    if (l.seen && m.seen && l.values["rejected requests"] == rejected_after &&
-        m.values["database size"] == std::to_string(n)) {
-      break;
-    }
-  }
-  const NodeStatus mapper_status = LatestStatus(diagnostics.Get(), "/mapper");
+  auto value_is = [](const std::string& key, const std::string& want) {
+    return [key, want](const NodeStatus& st) {
+      const auto it = st.values.find(key);
+      return it != st.values.end() && it->second == want;
+    };
+  };
+  const NodeStatus mapper_status =
+      WaitForStatus(diagnostics, "/mapper", value_is("database size", std::to_string(n)), 120);
   ASSERT_TRUE(mapper_status.seen);
   EXPECT_EQ(mapper_status.status.level, diagnostic_msgs::DiagnosticStatus::OK)
       << mapper_status.status.message;
   EXPECT_EQ(mapper_status.values.at("database size"), std::to_string(n));
   EXPECT_EQ(mapper_status.values.at("missing transforms"), "0");
-  const NodeStatus localizer_status = LatestStatus(diagnostics.Get(), "/localizer");
+  const NodeStatus localizer_status =
+      WaitForStatus(diagnostics, "/localizer", value_is("rejected requests", rejected_after), 120);
   ASSERT_TRUE(localizer_status.seen);
   EXPECT_EQ(localizer_status.values.at("database size"), std::to_string(n));
   EXPECT_EQ(localizer_status.values.at("rejected requests"), rejected_after);

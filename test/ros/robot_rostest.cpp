@@ -513,12 +513,12 @@ TEST(Robot, ImagesWaitForTheFirstCameraInfo) {
   EXPECT_EQ(info.images_dropped, 1u) << "the newer image replaces the waiting one";
   EXPECT_EQ(info.images_processed, 0u);
 
-  NodeStatus st;
-  for (const ros::WallTime end = ros::WallTime::now() + ros::WallDuration(30);
-       ros::WallTime::now() < end; ros::WallDuration(0.1).sleep()) {
-    st = LatestStatus(diagnostics.Get(), "/waiting");
-    if (st.seen && st.status.message.find("waiting for camera_info") != std::string::npos) break;
-  }
+  NodeStatus st = WaitForStatus(
+      diagnostics, "/waiting",
+      [](const NodeStatus& s) {
+        return s.status.message.find("waiting for camera_info") != std::string::npos;
+      },
+      30);
   ASSERT_TRUE(st.seen) << "no /diagnostics status from /waiting";
   EXPECT_EQ(st.status.level, diagnostic_msgs::DiagnosticStatus::WARN);
   EXPECT_NE(st.status.message.find("waiting for camera_info on /wait_camera/camera_info"),

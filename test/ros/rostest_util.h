@@ -271,6 +271,21 @@ inline NodeStatus LatestStatus(const std::vector<diagnostic_msgs::DiagnosticArra
   return out;
 }
 
+// Waits up to `seconds` for the latest /diagnostics status of `node` that satisfies `pred` (a
+// status is published once a second, later on a busy machine): the latest status seen, which
+// the caller checks (unseen, or not satisfying `pred`, when the time ran out).
+template <class Pred>
+NodeStatus WaitForStatus(const Collector<diagnostic_msgs::DiagnosticArray>& diagnostics,
+                         const std::string& node, Pred pred, double seconds) {
+  NodeStatus st;
+  for (const ros::WallTime end = ros::WallTime::now() + ros::WallDuration(seconds);
+       ros::WallTime::now() < end; ros::WallDuration(0.05).sleep()) {
+    st = LatestStatus(diagnostics.Get(), node);
+    if (st.seen && pred(st)) break;
+  }
+  return st;
+}
+
 inline double PositionErrorMm(const gtbow::Pose2D& a, const gtbow::Pose2D& b) {
   return 1000.0 * std::hypot(a.x - b.x, a.y - b.y);
 }
