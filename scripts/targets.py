@@ -148,9 +148,14 @@ REAL_SEQUENCE = {
                          "%"),
     "day0_worst": claim("changing_floors, 5-image sequences, day-0 localization, every surface, "
                         "every rendering (worst)", ">=", 0.95, "%"),
-    "zero_wrong": claim("changing_floors, sequences, wrong verified poses the combined views add "
-                        "(beyond the single-image run's), the ten photos in every rendering and the "
-                        "synthetic surfaces", "<=", 0, "n"),
+    # The passes the node runs (gtbow eval counts them so since December 2026): the query alone,
+    # then the combined view where it gave no fix. Until then a run counted every combined view and
+    # the claim was what they added beyond the single-image run, the held-out photos left out (a
+    # combined view of the desert floor verified its copy, 118 mm away, where the query alone
+    # localized and the node never verifies the combined view).
+    "zero_wrong": claim("changing_floors, sequences, wrong verified poses (the query alone, then the "
+                        "combined view where it gave no fix), the ten photos in every rendering, the "
+                        "synthetic surfaces and the held-out photos", "<=", 0, "n"),
     "smooth_oldest": claim("changing_floors, 5-image sequences, synthetic smooth concrete, day-180 "
                            "localization", ">=", 0.80, "%"),
     "epoxy_day0": open_("changing_floors, 5-image sequences, synthetic epoxy, day-0 localization",

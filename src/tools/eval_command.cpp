@@ -477,12 +477,22 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
       bool escalated = false;    // escalate: the full pass gave loc
       bool skipped = false;      // escalate: the backoff sent it straight to the full pass
       Localization first, full;  // escalate: each pass's own fix (the backoff chooses, below)
-      // escalate: the first pass's verified candidates, counted unless the backoff skipped it.
-      size_t first_verified = 0, first_wrong = 0;
-      std::string first_rows;
+      // Verified candidates of one pass: counted, and written to verifications.csv.
+      struct Verified {
+        size_t verified = 0, wrong = 0;
+        std::string rows;
+        void Add(const Verified& o) {
+          verified += o.verified;
+          wrong += o.wrong;
+          rows += o.rows;
+        }
+      };
+      // escalate: each pass's verified candidates, counted where the node would have run it
+      // (the first pass unless the backoff skipped it, the full pass when the first gave no fix
+      // that stands).
+      Verified first_pass, full_pass;
       Pose2D truth;
-      size_t verified = 0, wrong = 0;  // over all top-K candidates
-      std::string rows;                // verifications.csv
+      Verified poses;  // over all top-K candidates of the passes that ran
     };
     std::vector<PerQuery> per(q_src.size());
     ProgressBar bar("queries " + split, q_src.size(), !a.quiet);
@@ -503,6 +513,9 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
       std::vector<QueryResult> single_candidates;
       const BowVector* first_vec = nullptr;
       const LocalizationOptions* first_lo = &lo;
+      // A sequence query's combined view is verified only where the node verifies it: when the
+      // query alone gave no fix (or with --sequence-always). Its candidates count only then.
+      bool used_combined = true;
       if (a.sequence > 1) {
         const BowVector& own = q_single_all[si][qi];
         first_vec = &own;
@@ -511,7 +524,8 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
         }
         p.loc = SequenceFix(
             sequence, [&] { return VerifyCandidates(single_candidates, own, map, geo, lo); },
-            [&] { return VerifyCandidates(candidates, q_vecs[qi], map, geo, lo_view); }, nullptr);
+            [&] { return VerifyCandidates(candidates, q_vecs[qi], map, geo, lo_view); },
+            &used_combined);
       } else if (escalate) {
         const BowVector& own = q_first_all[si][qi];
         first_vec = &own;
@@ -524,29 +538,37 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
       } else {
         p.loc = VerifyCandidates(candidates, q_vecs[qi], map, geo, lo);
       }
-      // One row per verified candidate: its evidence and its error against the truth.
+      // One row per verified candidate: its evidence and its error against the truth, and which
+      // view of the query verified it (`view`: image, first_pass, full_pass, alone, combined).
       auto record = [&](size_t rank, const PoseEstimate& e,
-                        const std::vector<QueryResult>& candidates, bool first_pass = false) {
-        ++(first_pass ? p.first_verified : p.verified);
+                        const std::vector<QueryResult>& candidates, const char* view,
+                        PerQuery::Verified* into) {
+        ++into->verified;
         const bool wrong = !IsCorrectPose(e.floor_from_query, p.truth);
-        (first_pass ? p.first_wrong : p.wrong) += wrong ? 1 : 0;
+        into->wrong += wrong ? 1 : 0;
         const Pose2D& f = e.floor_from_query;
-        char b[512];
+        char b[560];
         std::snprintf(b, sizeof(b),
                       "%s,%s,%s,%zu,%s,%.6g,%d,%d,%.4g,%.4g,%.4g,%d,%.4g,%.4g,%.4g,%d,%.6f,%.6f,"
-                      "%.6f,%.6f,%.6f,%.6f\n",
+                      "%.6f,%.6f,%.6f,%.6f,%s\n",
                       pr.name.c_str(), split.c_str(), q_src.name(qi).c_str(), rank + 1,
                       db_names[candidates[rank].image].c_str(), candidates[rank].score, e.matches,
                       e.inliers, e.residual_rms, e.spread, e.theta_sigma * 180.0 / M_PI,
                       e.second_inliers, e.angle_agreement,
                       1000.0 * std::hypot(f.x - p.truth.x, f.y - p.truth.y),
                       std::abs(WrapAngle(f.theta - p.truth.theta)) * 180.0 / M_PI, wrong ? 1 : 0,
-                      f.x, f.y, f.theta, p.truth.x, p.truth.y, p.truth.theta);
-        (first_pass ? p.first_rows : p.rows) += b;
+                      f.x, f.y, f.theta, p.truth.x, p.truth.y, p.truth.theta, view);
+        into->rows += b;
       };
-      const std::vector<PoseEstimate> each = VerifyEach(candidates, q_vecs[qi], map, geo, lo_view);
-      for (size_t k = 0; k < each.size(); ++k) {
-        if (each[k].success) record(k, each[k], candidates);
+      if (used_combined) {
+        const std::vector<PoseEstimate> each =
+            VerifyEach(candidates, q_vecs[qi], map, geo, lo_view);
+        const char* view = a.sequence > 1 ? "combined" : escalate ? "full_pass" : "image";
+        for (size_t k = 0; k < each.size(); ++k) {
+          if (each[k].success) {
+            record(k, each[k], candidates, view, escalate ? &p.full_pass : &p.poses);
+          }
+        }
       }
       if (!single_candidates.empty()) {  // the first pass's candidates count too
         const std::vector<PoseEstimate> own =
@@ -556,7 +578,8 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
         const int stands = escalate ? lo.escalate_min_inliers : 0;
         for (size_t k = 0; k < own.size(); ++k) {
           if (own[k].success && own[k].inliers >= stands) {
-            record(k, own[k], single_candidates, escalate);
+            record(k, own[k], single_candidates, escalate ? "first_pass" : "alone",
+                   escalate ? &p.first_pass : &p.poses);
           }
         }
       }
@@ -587,22 +610,19 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
         p.loc = EscalatedFix(
             true, lo, [&] { return p.first; }, [&] { return p.full; }, &p.escalated, &backoff);
         p.skipped = backoff.skipped() != skipped;
-        if (!p.skipped) {  // the first pass ran: its verified candidates count
-          p.verified += p.first_verified;
-          p.wrong += p.first_wrong;
-          p.rows += p.first_rows;
-        }
+        if (!p.skipped) p.poses.Add(p.first_pass);  // the first pass ran
+        if (p.escalated) p.poses.Add(p.full_pass);  // and the full pass, where it ran
       }
     }
     sr.recall.assign(std::size(kRecallN), 0.0);
     std::vector<RankedAnswer> top1, closures;
     for (size_t qi = 0; qi < per.size(); ++qi) {
       const PerQuery& p = per[qi];
-      sr.verified_poses += p.verified;
-      sr.wrong_verified_poses += p.wrong;
+      sr.verified_poses += p.poses.verified;
+      sr.wrong_verified_poses += p.poses.wrong;
       sr.escalated += p.escalated && !p.skipped ? 1 : 0;
       sr.first_passes_skipped += p.skipped ? 1 : 0;
-      *verifications += p.rows;
+      *verifications += p.poses.rows;
       if (p.counted && !p.ranking.empty()) {
         top1.push_back({p.ranking[0].score, IsRelevant(p.truth, db_pose[p.ranking[0].image], geo)});
       }
@@ -875,7 +895,7 @@ void RunEval(const EvalArgs& a) {
     std::string verifications =
         "preset,split,query,rank,image,score,matches,inliers,residual_px,spread_px,"
         "theta_sigma_deg,second_inliers,angle_agreement,error_mm,error_deg,wrong,x,y,theta,true_x,"
-        "true_y,true_theta\n";
+        "true_y,true_theta,view\n";
     const size_t np = presets.size();
     std::vector<std::string> rankings_of(np, "query,rank,image,score\n"),
         poses_of(np, "query,x,y,theta,inliers\n"), verifications_of(np);

@@ -9,6 +9,7 @@
 #include <fstream>
 #include <map>
 #include <regex>
+#include <set>
 #include <sstream>
 #include <string>
 
@@ -176,6 +177,30 @@ TEST_F(GtbowCli, TrainEvaluateAndBenchmarkOnASyntheticFloor) {
   const YAML::Node seq = YAML::LoadFile((dir_ / "seq" / "results.json").string());
   EXPECT_EQ(seq["protocol"]["sequence"].as<int>(), 3);
   EXPECT_GE(seq["presets"][0]["splits"][0]["localization"]["success_rate"].as<double>(), 0.5);
+  {
+    // The verified poses counted are those the node verifies: the query alone's, and the
+    // combined view's only where the query alone gave no fix (no query has both).
+    std::ifstream csv(dir_ / "seq" / "verifications.csv");
+    std::string line;
+    ASSERT_TRUE(std::getline(csv, line));
+    ASSERT_EQ(line.substr(line.rfind(',') + 1), "view");
+    std::map<std::string, std::set<std::string>> views;  // query -> its rows' views
+    size_t rows = 0;
+    while (std::getline(csv, line)) {
+      const size_t a = line.find(','), b = line.find(',', a + 1), c = line.find(',', b + 1);
+      views[line.substr(b + 1, c - b - 1)].insert(line.substr(line.rfind(',') + 1));
+      ++rows;
+    }
+    EXPECT_EQ(static_cast<double>(rows),
+              seq["presets"][0]["splits"][0]["backend"]["verified_poses"].as<double>());
+    size_t alone = 0;
+    for (const auto& [query, v] : views) {
+      EXPECT_TRUE(v == std::set<std::string>{"alone"} || v == std::set<std::string>{"combined"})
+          << query;
+      alone += v.count("alone");
+    }
+    EXPECT_GT(alone, 0u);
+  }
   r = RunGtbow("eval --dataset " + d + " --vocab " + Out("v.gtvoc") + " --out " + Out("seq4") +
                " --sequence 4 --query-splits query_day000 --no-cache --no-plots -q");
   EXPECT_NE(r.code, 0);

@@ -319,7 +319,8 @@ class Real(Base):
         self.expect(OK, "write_real_results.py", "--heldout", held, ins[0], self.docs, *ins[1:])
         self.assertIn("Held-out photographs", self.section("real"))
 
-    def sequence_inputs(self, cf5_oldest=0.98, wrong=0, renderings=(2, 3, 4), smooth5=0.8):
+    def sequence_inputs(self, cf5_oldest=0.98, wrong=0, renderings=(2, 3, 4), smooth5=0.8,
+                        held_wrong=0):
         """The --sequence results of scripts/benchmark_real.sh: rendering 1 with 3 and 5 images,
         renderings 2-4 with 1 and 5, the synthetic surfaces with 3 and 5, the held-out photos."""
         def res(name, n, presets, cf_oldest, surface="photo", photos=PHOTOS, w=0):
@@ -348,7 +349,7 @@ class Real(Base):
                         p["splits"][1] = split("query_day180", 180, loc=smooth5, queries=30)
                 out.append(dump(os.path.join(self.dir, "lc_%s_%d" % (surface, n), "results.json"), lc))
         out.append(dump(os.path.join(self.dir, "held5", "results.json"),
-                        res("photo_floor_seed1", 5, both, 0.9, photos=PHOTOS[:2])))
+                        res("photo_floor_seed1", 5, both, 0.9, photos=PHOTOS[:2], w=held_wrong)))
         return [a for f in out for a in ("--sequence", f)]
 
     def maintained_inputs(self, best_oldest=1.0, renderings=(1, 2, 3, 4), placed_wrong=0):
@@ -426,7 +427,12 @@ class Real(Base):
     def test_sequence_wrong_pose(self):
         ins = self.inputs()
         self.expect(MISSED, "write_real_results.py", "--check", *self.sequence_inputs(wrong=1), *ins,
-                    why="wrong verified poses the combined views add")
+                    why="changing_floors, sequences, wrong verified poses")
+
+    def test_sequence_wrong_pose_held_out(self):
+        ins = self.inputs()
+        self.expect(MISSED, "write_real_results.py", "--check", *self.sequence_inputs(held_wrong=1),
+                    *ins, why="changing_floors, sequences, wrong verified poses")
 
     def test_sequence_mean_missed(self):
         ins = self.inputs()
