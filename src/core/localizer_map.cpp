@@ -475,11 +475,15 @@ SaveStats Localizer::Save(const std::filesystem::path& path, bool paced) const {
       }
     }
     if (file.written() != l.file_size) throw std::logic_error("Localizer::Save: layout mismatch");
+    const auto commit_start = Clock::now();
     mapped = file.CommitAndMap();
+    const auto populate_start = Clock::now();
+    stats.commit_ms = ms(commit_start, populate_start);
     // The index's pages mapped now, here (they are in the page cache, just written): the first
     // queries after the swap below then do not page-fault through gigabytes while they run. The
     // keyframes' payloads are left to be mapped as verification reads them.
     TouchPages(mapped->data() + l.offset[kIndexEntries], l.size[kIndexEntries]);
+    stats.populate_ms = ms(populate_start, Clock::now());
   });
   stats.write_ms = ms(write_start, Clock::now());
   stats.keyframes = n;
@@ -501,10 +505,12 @@ SaveStats Localizer::Save(const std::filesystem::path& path, bool paced) const {
     if (generation_ == generation) keyframes_->Rebase(std::move(segment));
     stats.swap_ms += ms(t0, Clock::now());
   }
+  const auto free_start = Clock::now();
   RunAtLowPriority([&] {
     replaced.reset();
     segments.clear();  // the sealed heap keyframes
   });
+  stats.free_ms = ms(free_start, Clock::now());
   return stats;
 }
 

@@ -201,6 +201,35 @@ TEST_F(GtbowCli, TrainEvaluateAndBenchmarkOnASyntheticFloor) {
     }
     EXPECT_GT(alone, 0u);
   }
+  // An escalating preset: a query's full pass counts only where the node runs it (the first
+  // pass gave no fix that stands, or the backoff skipped it).
+  r = RunGtbow("train-vocab --dataset " + d +
+               " --words 800 --preset " GTBOW_CONFIG_DIR "/changing_floors.yaml --out " +
+               Out("cf.gtvoc") + " -q");
+  ASSERT_EQ(r.code, 0) << r.output;
+  r = RunGtbow("eval --dataset " + d + " --vocab " + Out("cf.gtvoc") + " --out " + Out("esc") +
+               " --preset " GTBOW_CONFIG_DIR "/changing_floors.yaml --query-splits query_day000" +
+               " --timing-queries 0 --no-cache --no-plots -q");
+  ASSERT_EQ(r.code, 0) << r.output;
+  {
+    const YAML::Node esc = YAML::LoadFile((dir_ / "esc" / "results.json").string());
+    const YAML::Node s = esc["presets"][0]["splits"][0];
+    std::ifstream csv(dir_ / "esc" / "verifications.csv");
+    std::string line;
+    ASSERT_TRUE(std::getline(csv, line));
+    std::map<std::string, std::set<std::string>> views;  // query -> its rows' views
+    while (std::getline(csv, line)) {
+      const size_t a = line.find(','), b = line.find(',', a + 1), c = line.find(',', b + 1);
+      views[line.substr(b + 1, c - b - 1)].insert(line.substr(line.rfind(',') + 1));
+    }
+    size_t first = 0, full = 0;
+    for (const auto& [query, v] : views) {
+      first += v.count("first_pass");
+      full += v.count("full_pass");
+    }
+    EXPECT_GT(first, 0u);
+    EXPECT_LE(full, s["escalated_queries"].as<size_t>() + s["first_passes_skipped"].as<size_t>());
+  }
   r = RunGtbow("eval --dataset " + d + " --vocab " + Out("v.gtvoc") + " --out " + Out("seq4") +
                " --sequence 4 --query-splits query_day000 --no-cache --no-plots -q");
   EXPECT_NE(r.code, 0);

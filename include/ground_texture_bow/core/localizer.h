@@ -91,7 +91,11 @@ struct SaveStats {
   uint64_t bytes = 0;
   double seal_ms = 0;   // lock held: tails sealed
   double write_ms = 0;  // no lock: the file written, flushed and mapped
-  double swap_ms = 0;   // lock held: the index and keyframes pointed at the file
+  // The end of write_ms: the file flushed, synced, mapped and renamed (commit_ms), then the
+  // index's pages mapped into the process (populate_ms).
+  double commit_ms = 0, populate_ms = 0;
+  double swap_ms = 0;  // lock held: the index and keyframes pointed at the file
+  double free_ms = 0;  // no lock, after the swap: the heap copies the file replaced, freed
 };
 
 // What a map file's header says (Localizer::ReadMapInfo), for either format version.
