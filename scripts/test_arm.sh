@@ -3,7 +3,8 @@
 # dispatch, free of OpenCV) with their tests cross-built for aarch64 by Debian's
 # g++-aarch64-linux-gnu, linked statically and run under qemu-user: once with GTBOW_SIMD unset
 # (the neon kernel) and once per value (portable, neon). Not part of make test. Installs the
-# cross compiler, qemu-user and googletest's sources when they are missing (apt-get, as root).
+# cross compiler, qemu-user and googletest's sources when they are missing (apt-get, through sudo
+# when not root).
 # Usage: test_arm.sh [BUILD_DIR]   (default build/arm)
 set -euo pipefail
 repo="$(cd "$(dirname "$0")/.." && pwd)"
@@ -17,8 +18,11 @@ command -v qemu-aarch64 > /dev/null || command -v qemu-aarch64-static > /dev/nul
 [ -f /usr/src/googletest/googletest/src/gtest-all.cc ] || need+=(googletest)
 if [ ${#need[@]} -gt 0 ]; then
   echo "test-arm: installing ${need[*]}"
-  apt-get update
-  DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recommends "${need[@]}"
+  sudo=()  # as scripts/install_deps.sh: root installs itself, another user through sudo
+  if [ "$(id -u)" -ne 0 ]; then sudo=(sudo); fi
+  "${sudo[@]}" apt-get update
+  "${sudo[@]}" env DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recommends \
+    "${need[@]}"
 fi
 qemu="$(command -v qemu-aarch64 || command -v qemu-aarch64-static)"
 
