@@ -302,7 +302,7 @@ def sequences(chk, files, main_by, photos, days, lc_by):
         chk.need((1, n) in real and "high_accuracy" in real[(1, n)], "rendering 1, sequence %d" % n)
         for surface in T.REAL_EXPECT["low_contrast"]:
             chk.need((surface, n) in lc, "%s, sequence %d" % (surface, n))
-    chk.need(5 in held, "the held-out photos, sequence 5")
+    chk.need(5 in held and "changing_floors" in held[5], "the held-out photos, changing_floors, sequence 5")
     if chk.missing:
         return []
     mean = lambda ps, d: sum(loc(ps[ph][d]) for ph in photos) / len(photos)

@@ -548,16 +548,20 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
         into->wrong += wrong ? 1 : 0;
         const Pose2D& f = e.floor_from_query;
         char b[560];
-        std::snprintf(b, sizeof(b),
-                      "%s,%s,%s,%zu,%s,%.6g,%d,%d,%.4g,%.4g,%.4g,%d,%.4g,%.4g,%.4g,%d,%.6f,%.6f,"
-                      "%.6f,%.6f,%.6f,%.6f,%s\n",
-                      pr.name.c_str(), split.c_str(), q_src.name(qi).c_str(), rank + 1,
-                      db_names[candidates[rank].image].c_str(), candidates[rank].score, e.matches,
-                      e.inliers, e.residual_rms, e.spread, e.theta_sigma * 180.0 / M_PI,
-                      e.second_inliers, e.angle_agreement,
-                      1000.0 * std::hypot(f.x - p.truth.x, f.y - p.truth.y),
-                      std::abs(WrapAngle(f.theta - p.truth.theta)) * 180.0 / M_PI, wrong ? 1 : 0,
-                      f.x, f.y, f.theta, p.truth.x, p.truth.y, p.truth.theta, view);
+        const int len = std::snprintf(
+            b, sizeof(b),
+            "%s,%s,%s,%zu,%s,%.6g,%d,%d,%.4g,%.4g,%.4g,%d,%.4g,%.4g,%.4g,%d,%.6f,%.6f,"
+            "%.6f,%.6f,%.6f,%.6f,%s\n",
+            pr.name.c_str(), split.c_str(), q_src.name(qi).c_str(), rank + 1,
+            db_names[candidates[rank].image].c_str(), candidates[rank].score, e.matches, e.inliers,
+            e.residual_rms, e.spread, e.theta_sigma * 180.0 / M_PI, e.second_inliers,
+            e.angle_agreement, 1000.0 * std::hypot(f.x - p.truth.x, f.y - p.truth.y),
+            std::abs(WrapAngle(f.theta - p.truth.theta)) * 180.0 / M_PI, wrong ? 1 : 0, f.x, f.y,
+            f.theta, p.truth.x, p.truth.y, p.truth.theta, view);
+        if (len < 0 || static_cast<size_t>(len) >= sizeof(b)) {
+          throw std::runtime_error("verifications.csv: the row of query " + q_src.name(qi) +
+                                   " does not fit in " + std::to_string(sizeof(b)) + " bytes");
+        }
         into->rows += b;
       };
       if (used_combined) {
