@@ -842,6 +842,8 @@ void LocalizerServer::Diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat
   stat.add("maintenance: views added", views_added_.load());
   stat.add("maintenance: keyframes retired", keyframes_retired_.load());
   stat.add("images rectified", rectified_.load());
+  // The debug overlay is drawn only while someone subscribes (it costs a frame's drawing).
+  stat.add("debug image subscribers", debug_pub_.getNumSubscribers());
   stat.add("pose frame", localizer_->pose_frame() +
                              (localizer_->poses_optimised() ? " (optimised by a backend)" : ""));
   stat.add("keyframes re-posed (keyframe_poses)", keyframes_reposed_.load());

@@ -101,8 +101,22 @@ TEST(Mapping, ReplayBuildsKeyframesAndRevisitsGetTheRightOnes) {
   ASSERT_GT(mapping.size(), 20u);
   Replay(std::vector<Frame>(mapping.begin(), mapping.begin() + 5), "/camera/image_raw",
          "/localizer", 4.0);
+  // The node's own count of the overlay's subscribers (/diagnostics): seen at 1, then, after
+  // the subscriber goes, at 0 in a later status, before the rest is replayed.
+  auto subscribers = [](const NodeStatus& st) {
+    const auto it = st.values.find("debug image subscribers");
+    return it == st.values.end() ? -1 : std::stoi(it->second);
+  };
+  ASSERT_EQ(subscribers(WaitForStatus(
+                diagnostics, "/localizer",
+                [&](const NodeStatus& st) { return subscribers(st) == 1; }, 120.0)),
+            1);
   debug_topic.Stop();
-  ros::WallDuration(1.0).sleep();  // the node sees the subscriber go
+  ASSERT_EQ(subscribers(WaitForStatus(
+                diagnostics, "/localizer",
+                [&](const NodeStatus& st) { return subscribers(st) == 0; }, 120.0)),
+            0)
+      << "the node still counts the debug image's subscriber";
   const uint64_t drawn_while_subscribed = Info("/localizer").debug_images;
   Replay(std::vector<Frame>(mapping.begin() + 5, mapping.end()), "/camera/image_raw", "/localizer",
          4.0);
