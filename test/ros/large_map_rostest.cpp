@@ -192,21 +192,18 @@ TEST(LargeMap, SavedAndLoadedAnswersAreThoseBeforeTheSave) {
   // and the mapper's every image (diagnostic_updater publishes once a second, later on a busy
   // machine; a fixed 1.5 s wait once read the status from before the refusal).
   const std::string rejected_after = std::to_string(rejected + 1);
-  auto value_is = [](const std::string& key, const std::string& want) {
-    return [key, want](const NodeStatus& st) {
-      const auto it = st.values.find(key);
-      return it != st.values.end() && it->second == want;
-    };
+  auto value_is = [](const std::string& key, double want) {
+    return [key, want](const NodeStatus& st) { return StatusValue(st, key) == want; };
   };
   const NodeStatus mapper_status =
-      WaitForStatus(diagnostics, "/mapper", value_is("database size", std::to_string(n)), 120);
+      WaitForStatus(diagnostics, "/mapper", value_is("database size", n), 120);
   ASSERT_TRUE(mapper_status.seen);
   EXPECT_EQ(mapper_status.status.level, diagnostic_msgs::DiagnosticStatus::OK)
       << mapper_status.status.message;
   EXPECT_EQ(mapper_status.values.at("database size"), std::to_string(n));
   EXPECT_EQ(mapper_status.values.at("missing transforms"), "0");
   const NodeStatus localizer_status =
-      WaitForStatus(diagnostics, "/localizer", value_is("rejected requests", rejected_after), 120);
+      WaitForStatus(diagnostics, "/localizer", value_is("rejected requests", rejected + 1), 120);
   ASSERT_TRUE(localizer_status.seen);
   EXPECT_EQ(localizer_status.values.at("database size"), std::to_string(n));
   EXPECT_EQ(localizer_status.values.at("rejected requests"), rejected_after);

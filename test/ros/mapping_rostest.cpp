@@ -104,8 +104,7 @@ TEST(Mapping, ReplayBuildsKeyframesAndRevisitsGetTheRightOnes) {
   // The node's own count of the overlay's subscribers (/diagnostics): seen at 1, then, after
   // the subscriber goes, at 0 in a later status, before the rest is replayed.
   auto subscribers = [](const NodeStatus& st) {
-    const auto it = st.values.find("debug image subscribers");
-    return it == st.values.end() ? -1 : std::stoi(it->second);
+    return StatusValue(st, "debug image subscribers");
   };
   ASSERT_EQ(subscribers(WaitForStatus(
                 diagnostics, "/localizer",

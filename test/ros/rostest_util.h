@@ -271,6 +271,12 @@ inline NodeStatus LatestStatus(const std::vector<diagnostic_msgs::DiagnosticArra
   return out;
 }
 
+// The number `key` holds in a status, or -1 when it holds none.
+inline double StatusValue(const NodeStatus& st, const std::string& key) {
+  const auto it = st.values.find(key);
+  return it == st.values.end() || it->second.empty() ? -1 : std::stod(it->second);
+}
+
 // Waits up to `seconds` for the latest /diagnostics status of `node` that satisfies `pred` (a
 // status is published once a second, later on a busy machine): the latest status seen, which
 // the caller checks (unseen, or not satisfying `pred`, when the time ran out).

@@ -47,7 +47,7 @@ struct LocalizerOptions {
   bool keep_descriptors = true;
   // The pace of Save's writer, MB/s (0: as fast as the disk allows). A save of a warehouse map
   // (gigabytes) written at full speed slows the queries and insertions running beside it on a
-  // small computer; paced, they keep about their speed and the save takes longer (6.4 GB: 33-37 s
+  // small computer; paced, they keep about their speed and the save takes longer (6.4 GB: 33-46 s
   // at 200 MB/s, measured). Slower disks than the pace are not slowed further (docs/RESULTS.md,
   // "The writer paced"). 0, or at least 1 MB/s.
   double save_rate_mb = 200;
