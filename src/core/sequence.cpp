@@ -136,6 +136,19 @@ Localization SequenceFix(const SequenceOptions& options,
   return combined();
 }
 
+size_t ImagesInSpan(const std::vector<std::optional<Pose2D>>& newest_first,
+                    const SequenceOptions& options) {
+  if (newest_first.empty()) return 0;
+  const std::optional<Pose2D>& newest = newest_first.front();
+  if (!newest) return 1;
+  const size_t most = std::min(newest_first.size(), static_cast<size_t>(options.length));
+  for (size_t i = 1; i < most; ++i) {
+    const std::optional<Pose2D>& o = newest_first[i];
+    if (!o || std::hypot(o->x - newest->x, o->y - newest->y) > options.max_span) return i;
+  }
+  return most;
+}
+
 QuerySequence::QuerySequence(const SequenceOptions& options) : options_(options) {
   options_.Check();
 }
@@ -146,15 +159,9 @@ void QuerySequence::Push(ProcessedImage image, const std::optional<Pose2D>& odom
     entries_.clear();  // no odometry to relate it, or another camera mode: start again
   }
   entries_.push_front({std::move(image), odometry});
-  while (entries_.size() > static_cast<size_t>(options_.length)) entries_.pop_back();
-  // An older image belongs while its odometry is known and within max_span of the newest.
-  for (size_t i = 1; i < entries_.size(); ++i) {
-    const auto& o = entries_[i].odometry;
-    if (!o || std::hypot(o->x - odometry->x, o->y - odometry->y) > options_.max_span) {
-      entries_.resize(i);
-      break;
-    }
-  }
+  std::vector<std::optional<Pose2D>> odometries;
+  for (const Entry& e : entries_) odometries.push_back(e.odometry);
+  entries_.resize(ImagesInSpan(odometries, options_));
 }
 
 std::vector<const ProcessedImage*> QuerySequence::images() const {

@@ -80,10 +80,13 @@ std::unique_ptr<Vocabulary> GetVocabulary(const EvalArgs& a, const RetrievalConf
 
 // --sequence: the trail of each query (split trail_X of query split query_X, the nearest
 // sequence - 1 images, with trail_X_odometry.csv), to combine with the query's own features as
-// the node's Localizer::Combine does (CombineViews).
+// the node's Localizer::Combine does (CombineViews). A query keeps the trail images the node's
+// QuerySequence would (ImagesInSpan: up to the first beyond --sequence-max-span); a query left
+// with none is localized alone, as the node localizes an image whose sequence holds only it.
 struct QueryTrails {
   std::vector<std::vector<ImageFeatures>> views;  // per query, nearest first
   std::vector<std::vector<Pose2D>> poses;         // per query: the query's (origin), then theirs
+  bool Alone(size_t qi) const { return views[qi].empty(); }
   ImageFeatures Combine(const ImageFeatures& query, size_t qi, const ImageGeometry& g) const {
     std::vector<const ImageFeatures*> all{&query};
     for (const ImageFeatures& v : views[qi]) all.push_back(&v);
@@ -93,7 +96,7 @@ struct QueryTrails {
 
 QueryTrails ReadTrails(const EvalArgs& a, const Dataset& ds, const std::string& split,
                        const ImageSource& q_src, const FeatureOptions& options,
-                       const fs::path& cache) {
+                       const SequenceOptions& sequence, const fs::path& cache) {
   if (split.rfind("query_", 0) != 0) {
     throw std::invalid_argument("--sequence: split " + split + " is not a query_X split");
   }
@@ -139,6 +142,10 @@ QueryTrails ReadTrails(const EvalArgs& a, const Dataset& ds, const std::string& 
       t.views[qi].push_back(std::move(feats[k]));
       t.poses[qi].push_back(it->second);
     }
+    const std::vector<std::optional<Pose2D>> odometry(t.poses[qi].begin(), t.poses[qi].end());
+    const size_t kept = ImagesInSpan(odometry, sequence);
+    t.poses[qi].resize(kept);
+    t.views[qi].resize(kept - 1);
   }
   return t;
 }
@@ -337,6 +344,8 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
   SequenceOptions sequence;
   sequence.length = a.sequence;
   sequence.single_first = !a.sequence_always;
+  sequence.max_span = a.sequence_max_span;
+  sequence.Check();
   // An escalating preset (features.query_escalate) localizes a single image as the node's
   // localization mode does (Localizer::LocalizeImage): extracted as a keyframe first, with
   // query_num_features only when that gives no fix with escalate_min_inliers inliers. Not with
@@ -356,7 +365,8 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
     }
     if (a.sequence > 1) {
       q_single_all.push_back(EncodeAll(enc, q_feats, a.threads, !a.quiet));
-      q_trails.push_back(ReadTrails(a, ds, split, q_src, QueryFeatureOptions(c.features), cache));
+      q_trails.push_back(
+          ReadTrails(a, ds, split, q_src, QueryFeatureOptions(c.features), sequence, cache));
       for (size_t qi = 0; qi < q_feats.size(); ++qi) {
         q_feats[qi] = q_trails.back().Combine(q_feats[qi], qi, geo);
       }
@@ -519,13 +529,21 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
       if (a.sequence > 1) {
         const BowVector& own = q_single_all[si][qi];
         first_vec = &own;
-        if (sequence.single_first) {
+        // No trail image within the span: the node localizes the image alone (its sequence
+        // holds only it), as a single image.
+        const bool alone = q_trails[si].Alone(qi);
+        if (sequence.single_first || alone) {
           single_candidates = db.Query(own, static_cast<size_t>(lo.candidates), true);
         }
-        p.loc = SequenceFix(
-            sequence, [&] { return VerifyCandidates(single_candidates, own, map, geo, lo); },
-            [&] { return VerifyCandidates(candidates, q_vecs[qi], map, geo, lo_view); },
-            &used_combined);
+        if (alone) {
+          p.loc = VerifyCandidates(single_candidates, own, map, geo, lo);
+          used_combined = false;
+        } else {
+          p.loc = SequenceFix(
+              sequence, [&] { return VerifyCandidates(single_candidates, own, map, geo, lo); },
+              [&] { return VerifyCandidates(candidates, q_vecs[qi], map, geo, lo_view); },
+              &used_combined);
+        }
       } else if (escalate) {
         const BowVector& own = q_first_all[si][qi];
         first_vec = &own;
@@ -741,7 +759,7 @@ PresetResult EvalPreset(const EvalArgs& a, const std::string& preset_file, const
           nullptr, backoff);
     } else {
       f = extract(fxq);
-      if (a.sequence > 1) {
+      if (a.sequence > 1 && !q_trails[split].Alone(qi)) {
         (void)SequenceFix(
             sequence, alone,
             [&] {
@@ -1058,6 +1076,11 @@ void RegisterEval(CLI::App& app) {
       ->capture_default_str();
   cmd->add_option("--maintain-views", a->maintenance.max_views_per_place,
                   "Maintenance: maintained views a place keeps (besides the map's own keyframes)")
+      ->capture_default_str();
+  cmd->add_option("--sequence-max-span", a->sequence_max_span,
+                  "With --sequence, metres of odometry a trail image may lie from its query to be "
+                  "combined (the node's ~sequence_max_span); a query with none is localized alone")
+      ->check(CLI::PositiveNumber)
       ->capture_default_str();
   cmd->add_flag("--sequence-always", a->sequence_always,
                 "With --sequence, localize from the combined view only (the node's "

@@ -90,6 +90,7 @@ std::string ToJson(const EvalArgs& a, const Dataset& ds, const std::vector<Prese
   j.Key("success_position_mm").Num(kSuccessMeters * 1000).Key("success_heading_deg").Num(1.5);
   j.Key("sequence").Int(a.sequence);
   j.Key("sequence_single_first").Bool(a.sequence > 1 && !a.sequence_always);
+  j.Key("sequence_max_span_m").Num(a.sequence_max_span);
   j.Key("recall_n").Open('[');
   for (size_t n : kRecallN) j.Int(static_cast<long long>(n));
   j.Close(']');

@@ -10,6 +10,7 @@
 #include "ground_texture_bow/core/geometry.h"
 #include "ground_texture_bow/core/maintenance.h"
 #include "ground_texture_bow/core/pose.h"
+#include "ground_texture_bow/core/sequence.h"
 #include "ground_texture_bow/eval/dataset.h"
 #include "ground_texture_bow/eval/metrics.h"
 #include "image_source.h"
@@ -64,6 +65,10 @@ struct EvalArgs {
   // --query-trail), combined through their odometry (Localizer::Combine); 1 = single images.
   int sequence = 1;
   bool sequence_always = false;  // the combined view only, not the query alone first
+  // Metres of odometry a trail image may be from its query to be combined (the node's
+  // ~sequence_max_span; ImagesInSpan): the trail's images from the first one beyond it are left
+  // out.
+  double sequence_max_span = SequenceOptions().max_span;
   // A maintained map: these splits (sessions, in order) localize against the map and keep it up
   // (maintenance.h) before the query splits are evaluated; empty = the map as built.
   std::vector<std::string> maintain;

@@ -213,6 +213,23 @@ TEST_F(GtbowCli, TrainEvaluateAndBenchmarkOnASyntheticFloor) {
               seq["presets"][0]["splits"][0]["backend"]["verified_poses"].as<double>());
     EXPECT_GT(one_view_each(views, "alone", "combined"), 0u);
   }
+  // Trail images beyond the node's ~sequence_max_span are not combined (ImagesInSpan): with the
+  // trail 3 cm apart and a 1 cm span no query has one, and each is localized alone, as the node
+  // localizes an image its sequence holds alone, even with --sequence-always.
+  r = RunGtbow("eval --dataset " + d + " --vocab " + Out("v.gtvoc") + " --out " + Out("span") +
+               " --sequence 3 --sequence-always --sequence-max-span 0.01" +
+               " --query-splits query_day000 --timing-queries 2 --no-cache --no-plots -q");
+  ASSERT_EQ(r.code, 0) << r.output;
+  {
+    const YAML::Node span = YAML::LoadFile((dir_ / "span" / "results.json").string());
+    EXPECT_EQ(span["protocol"]["sequence_max_span_m"].as<double>(), 0.01);
+    size_t rows = 0;
+    const auto views = views_of("span", &rows);
+    EXPECT_GT(rows, 0u);
+    EXPECT_EQ(static_cast<double>(rows),
+              span["presets"][0]["splits"][0]["backend"]["verified_poses"].as<double>());
+    for (const auto& [query, v] : views) EXPECT_EQ(v, std::set<std::string>{"alone"}) << query;
+  }
   // An escalating preset: a query's full pass counts only where the node runs it (the first
   // pass gave no fix that stands, or the backoff skipped it).
   r = RunGtbow("train-vocab --dataset " + d +

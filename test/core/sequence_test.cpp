@@ -143,6 +143,25 @@ TEST(QuerySequence, KeepsTheLastImagesWithOdometryWithinItsSpan) {
   EXPECT_THROW(QuerySequence{o}, std::invalid_argument);
 }
 
+// What QuerySequence keeps and gtbow eval combines: the images up to the first older one
+// beyond the span or without odometry, at most `length`.
+TEST(ImagesInSpan, StopsAtTheFirstOlderImageBeyondTheSpan) {
+  SequenceOptions o;
+  o.length = 5;
+  o.max_span = 0.1;
+  using P = std::optional<Pose2D>;
+  EXPECT_EQ(ImagesInSpan({}, o), 0u);
+  EXPECT_EQ(ImagesInSpan({P{}}, o), 1u);  // no odometry: the image alone
+  EXPECT_EQ(ImagesInSpan({P{}, Pose2D{0, 0, 0}}, o), 1u);
+  const Pose2D at{1, 1, 0};
+  EXPECT_EQ(ImagesInSpan({at, Pose2D{1.05, 1, 0}, Pose2D{1, 1.09, 0}}, o), 3u);
+  // The one 0.2 m back ends the sequence; the one after it, close again, is not taken.
+  EXPECT_EQ(ImagesInSpan({at, Pose2D{1.05, 1, 0}, Pose2D{1.2, 1, 0}, Pose2D{1, 1.06, 0}}, o), 2u);
+  EXPECT_EQ(ImagesInSpan({at, Pose2D{1.05, 1, 0}, P{}, Pose2D{1, 1.06, 0}}, o), 2u);
+  o.length = 2;
+  EXPECT_EQ(ImagesInSpan({at, Pose2D{1.05, 1, 0}, Pose2D{1, 1.09, 0}}, o), 2u);
+}
+
 TEST(SequenceFix, TheImageAloneFirstThenTheCombinedView) {
   SequenceOptions o;
   o.length = 3;

@@ -42,6 +42,13 @@ struct SequenceOptions {
   void Check() const;  // throws std::invalid_argument naming the bad field
 };
 
+// How many of a robot's last images, newest first with their odometry, one sequence query
+// combines (what QuerySequence keeps and gtbow eval combines): the newest, then each older one
+// in turn while its odometry is known and within options.max_span metres of the newest's, at
+// most options.length. 1 when the newest has no odometry; 0 for no image.
+size_t ImagesInSpan(const std::vector<std::optional<Pose2D>>& newest_first,
+                    const SequenceOptions& options);
+
 // A sequence query's fix (what the node and gtbow eval both do): with `single_first`, the
 // newest image's own fix when it has one, else the combined view's; without, the combined
 // view's. `single` and `combined` localize one and the other; `combined` runs only when needed.
