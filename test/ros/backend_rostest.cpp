@@ -267,8 +267,24 @@ TEST(Backend, ClosuresCorrectTheOdometryAndAWrongOneIsIgnored) {
   }
   const auto info = Info("/localizer");
   EXPECT_EQ(info.images_processed, frames.size()) << Counters(info);
-  ros::WallDuration(1.0).sleep();
   ASSERT_TRUE(wrong) << "no closure past the drive's middle to build the wrong one from";
+  // Every closure the localizer published, and the wrong one, has reached this test and each
+  // backend before they are counted: waited on, since a busy machine delivers them late.
+  const size_t sent = info.loop_closures + 1;
+  const ros::WallTime arrive = ros::WallTime::now() + ros::WallDuration(120);
+  while (closures.Get().size() < sent && ros::WallTime::now() < arrive) {
+    ros::WallDuration(0.05).sleep();
+  }
+  ASSERT_EQ(closures.Get().size(), sent) << "closures received here of those published";
+  for (const std::string& node : nodes) {
+    // save_trajectory without a path reports and optimises, as the backend's timer does.
+    SaveTrajectory s = Call<SaveTrajectory>("/" + node + "/save_trajectory");
+    while (s.response.closures_received < sent && ros::WallTime::now() < arrive) {
+      ros::WallDuration(0.05).sleep();
+      s = Call<SaveTrajectory>("/" + node + "/save_trajectory");
+    }
+    ASSERT_EQ(s.response.closures_received, sent) << node << ": closures received";
+  }
   const size_t q = index_of.at(wrong->query_stamp), m = index_of.at(wrong->match_stamp);
   const double true_distance =
       std::hypot(frames[m].truth.x - frames[q].truth.x, frames[m].truth.y - frames[q].truth.y);

@@ -157,7 +157,8 @@ TEST(Robot, BaseFixesFromCameraInfoAndTfHeldWrongFixesAndAKidnappedRobot) {
   MapToOdomCollector map_to_odom;
   Collector<geometry_msgs::PoseWithCovarianceStamped> pose_topic("/localizer/pose");
   Collector<geometry_msgs::PoseWithCovarianceStamped> camera_topic("/localizer/camera_pose");
-  ros::WallDuration(0.5).sleep();
+  ASSERT_TRUE(pose_topic.WaitForPublisher());
+  ASSERT_TRUE(camera_topic.WaitForPublisher());
 
   // 1. Day 30 with odometry that has drifted: ~pose is the base, within the protocol's bound.
   const auto later = ReadBag(g_data + "/localization.bag");
@@ -168,7 +169,9 @@ TEST(Robot, BaseFixesFromCameraInfoAndTfHeldWrongFixesAndAKidnappedRobot) {
   auto info = Info("/localizer");
   EXPECT_EQ(info.images_rejected, 0u) << "the camera's scale (camera_info, TF) is the map's";
   EXPECT_EQ(info.fixes_held, 0u) << "every fix agrees with the odometry";
-  const auto base_fixes = Fixes(pose_topic.Get());
+  // Every fix published, on both topics, has come before they are counted.
+  const auto base_fixes = Fixes(pose_topic.WaitFor(info.fixes));
+  EXPECT_EQ(camera_topic.WaitFor(info.fixes).size(), info.fixes);
   int good = 0;
   for (const Frame& f : day30) {
     auto it = base_fixes.find(f.image->header.stamp);
@@ -201,14 +204,14 @@ TEST(Robot, BaseFixesFromCameraInfoAndTfHeldWrongFixesAndAKidnappedRobot) {
     seq_load.request.path = save.request.path;
     ASSERT_EQ(Call("/sequence/load_map", seq_load).response.status.code, Status::OK);
     Collector<geometry_msgs::PoseWithCovarianceStamped> seq_topic("/sequence/pose");
-    ros::WallDuration(0.5).sleep();
+    ASSERT_TRUE(seq_topic.WaitForPublisher());
     const auto frames = RobotFrames(later, drift_a, ros::Time::now());
     Replay(frames, "/seq_camera/image_raw", "/sequence", 4.0);
     const auto seq_info = Info("/sequence");
     EXPECT_EQ(seq_info.images_processed, frames.size());
     EXPECT_GE(seq_info.sequence_queries, 5u) << "consecutive images 3 cm apart were combined";
     EXPECT_LT(seq_info.sequence_queries, frames.size()) << "images far apart are not combined";
-    const auto seq_fixes = Fixes(seq_topic.Get());
+    const auto seq_fixes = Fixes(seq_topic.WaitFor(seq_info.fixes));
     int seq_good = 0;
     for (const Frame& f : frames) {
       auto it = seq_fixes.find(f.image->header.stamp);
@@ -231,11 +234,11 @@ TEST(Robot, BaseFixesFromCameraInfoAndTfHeldWrongFixesAndAKidnappedRobot) {
     ASSERT_EQ(Call("/maintainer/load_map", m_load).response.status.code, Status::OK);
     const uint32_t mapped = Info("/maintainer").database_size;
     Collector<geometry_msgs::PoseWithCovarianceStamped> m_topic("/maintainer/pose");
-    ros::WallDuration(0.5).sleep();
+    ASSERT_TRUE(m_topic.WaitForPublisher());
     const auto frames = RobotFrames(later, drift_a, ros::Time::now());
     Replay(frames, "/maint_camera/image_raw", "/maintainer", 4.0);
     const auto m_info = Info("/maintainer");
-    const size_t published = m_topic.Get().size();
+    const size_t published = m_topic.WaitFor(m_info.fixes).size();
     EXPECT_GE(published, frames.size() - 1);
     // Views of one place retire each other (three per place), the map's keyframes stay.
     EXPECT_GT(m_info.database_size, mapped);
@@ -451,9 +454,12 @@ TEST(Robot, ADistortingLensIsRectifiedFromCameraInfo) {
   }
   Collector<geometry_msgs::PoseWithCovarianceStamped> rect_topic("/rectifying/pose");
   Collector<geometry_msgs::PoseWithCovarianceStamped> raw_topic("/unrectified/pose");
-  ros::WallDuration(0.5).sleep();
+  ASSERT_TRUE(rect_topic.WaitForPublisher());
+  ASSERT_TRUE(raw_topic.WaitForPublisher());
   Replay(frames, "/rect_camera/image_raw", "/rectifying", 4.0);
   Replay(frames, "/raw_camera/image_raw", "/unrectified", 4.0);
+  rect_topic.WaitFor(Info("/rectifying").fixes);
+  raw_topic.WaitFor(Info("/unrectified").fixes);
   auto count = [&](const std::vector<geometry_msgs::PoseWithCovarianceStamped>& msgs) {
     const auto fixes = Fixes(msgs);
     int good = 0;

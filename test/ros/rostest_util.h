@@ -126,6 +126,26 @@ class Collector {
     return messages_;
   }
   void Stop() { sub_.shutdown(); }
+  // Waits until the subscription is connected to a publisher of the topic, so that what a node
+  // publishes from then on reaches it (a busy machine connects late); false after 120 s.
+  bool WaitForPublisher() const {
+    const ros::WallTime cap = ros::WallTime::now() + ros::WallDuration(120);
+    while (sub_.getNumPublishers() == 0) {
+      if (ros::WallTime::now() > cap) return false;
+      ros::WallDuration(0.02).sleep();
+    }
+    return true;
+  }
+  // Waits until at least `count` messages have come (what a node counts as published may still
+  // be on its way here) and returns them all; fewer after 120 s, for the test to name.
+  std::vector<M> WaitFor(size_t count) const {
+    const ros::WallTime cap = ros::WallTime::now() + ros::WallDuration(120);
+    while (true) {
+      std::vector<M> got = Get();
+      if (got.size() >= count || ros::WallTime::now() > cap) return got;
+      ros::WallDuration(0.02).sleep();
+    }
+  }
 
  private:
   mutable std::mutex mutex_;

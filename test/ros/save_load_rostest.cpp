@@ -80,12 +80,12 @@ TEST(SaveLoad, AFreshNodeLoadsTheMapAnswersAlikeAndLocalizesALaterDay) {
   // the match overlay draws the inliers in red over the camera image.
   Collector<geometry_msgs::PoseWithCovarianceStamped> fix_topic("/localizer/pose");
   Collector<sensor_msgs::Image> debug_topic("/localizer/debug_image");
-  ros::WallDuration(0.5).sleep();
+  ASSERT_TRUE(fix_topic.WaitForPublisher());
+  ASSERT_TRUE(debug_topic.WaitForPublisher());
   Replay(later_robot2, "/loc_camera/image_raw", "/localizer", 4.0);
-  ros::WallDuration(0.5).sleep();
   const auto info = Info("/localizer");  // at once: `localized` means a fix within 2 s
   std::map<ros::Time, gtbow::Pose2D> fixes;
-  for (const auto& p : fix_topic.Get()) {
+  for (const auto& p : fix_topic.WaitFor(info.fixes)) {
     const auto& q = p.pose.pose.orientation;
     EXPECT_EQ(p.header.frame_id, "map");
     EXPECT_GT(p.pose.covariance[0], 0.0);
@@ -103,7 +103,7 @@ TEST(SaveLoad, AFreshNodeLoadsTheMapAnswersAlikeAndLocalizesALaterDay) {
               later.size(), good);
   EXPECT_GE(good, static_cast<int>(later.size() * 9 / 10)) << good << " of " << later.size();
   int overlays_with_matches = 0;
-  for (const auto& img : debug_topic.Get()) {
+  for (const auto& img : debug_topic.WaitFor(info.debug_images)) {
     const cv::Mat bgr = cv_bridge::toCvCopy(img, "bgr8")->image;
     int red = 0;
     for (int v = 0; v < bgr.rows; ++v) {

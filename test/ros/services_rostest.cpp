@@ -49,9 +49,11 @@ TEST(Services, ExternalModeCompressedImagesAndMapServices) {
     ros::WallDuration(0.05).sleep();
   ASSERT_GT(pub.getNumSubscribers(), 0u);
   ros::WallDuration(0.5).sleep();  // the connection is up on both sides
+  // Each image only once the node has dealt with the one before (none is replaced waiting).
+  const uint64_t first_received = Info("/localizer").images_received;
   for (size_t i : {3u, 7u}) {
     pub.publish(Compress(*mapping[i].image));
-    ros::WallDuration(0.5).sleep();
+    WaitUntilHandled("/localizer", first_received + (i == 3u ? 1 : 2));
   }
   sensor_msgs::CompressedImage garbage;
   garbage.header = mapping[0].image->header;
@@ -160,12 +162,13 @@ TEST(Services, ExternalModeCompressedImagesAndMapServices) {
   // keyframe, without a pose.
   mode.request.mode = "mapping";
   Call("/localizer/set_mode", mode);
-  const uint64_t before_mapping = Info("/localizer").images_processed;
+  const auto before_info = Info("/localizer");
+  const uint64_t before_mapping = before_info.images_processed;
   for (int k = 0; k < 10; ++k) {
     sensor_msgs::CompressedImage c = Compress(*mapping[k].image);
     c.header.frame_id = "camera_without_tf";
     pub.publish(c);
-    ros::WallDuration(0.3).sleep();
+    WaitUntilHandled("/localizer", before_info.images_received + k + 1);
   }
   const ros::WallTime mapped = ros::WallTime::now() + ros::WallDuration(10);
   while (Info("/localizer").images_processed < before_mapping + 10 &&
