@@ -215,14 +215,10 @@ TEST(BadInput, EachKindIsCountedReportedAndLosesNothing) {
   // A transform that is missing or stale counts as missing, one that exists but cannot be used
   // (NaN, should tf2 pass it on) as unusable: four in all.
   auto transforms = [](const NodeStatus& st) {
-    int n = 0;
-    for (const char* key :
-         {"missing transforms", "unusable transforms (camera not looking down, bad rotation)"}) {
-      const auto it = st.values.find(key);
-      if (it == st.values.end() || it->second.empty()) return -1;
-      n += std::stoi(it->second);
-    }
-    return n;
+    const double missing = StatusValue(st, "missing transforms");
+    const double unusable =
+        StatusValue(st, "unusable transforms (camera not looking down, bad rotation)");
+    return missing < 0 || unusable < 0 ? -1 : static_cast<int>(missing + unusable);
   };
   const NodeStatus latest = wait_status("/localizer", [&](const NodeStatus& st) {
     return transforms(st) >= 4 && st.values.at("rejected images") == "3" &&

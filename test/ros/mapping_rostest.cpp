@@ -8,22 +8,6 @@ namespace {
 
 using namespace rostest_util;
 
-// The value of `key` in the newest /diagnostics status whose name contains `node`, or -1.
-double DiagnosticValue(const std::vector<diagnostic_msgs::DiagnosticArray>& arrays,
-                       const std::string& node, const std::string& key) {
-  for (auto a = arrays.rbegin(); a != arrays.rend(); ++a) {
-    for (const auto& status : a->status) {
-      // Named "<nodelet name without the leading slash>: localizer".
-      const std::string name = node.substr(node.rfind('/') + 1);
-      if (status.name.rfind(name + ": ", 0) != 0) continue;
-      for (const auto& kv : status.values) {
-        if (kv.key == key) return std::stod(kv.value);
-      }
-    }
-  }
-  return -1;
-}
-
 // ~temporal_consistency 3 through the node: each loop closure it publishes comes after two
 // processed images in a row that also verified a candidate, every other image that verified
 // one is held and counted in /diagnostics ("loop closures held"), and the first image of each
@@ -53,18 +37,13 @@ void ExpectTemporalConsistency(const std::string& node,
     published_after_run += i >= 2 && verified[i - 1] && verified[i - 2];
   }
   const int with_verified = static_cast<int>(std::count(verified.begin(), verified.end(), true));
-  // The counter, from a /diagnostics message sent after the last image was processed.
-  const ros::WallTime limit = ros::WallTime::now() + ros::WallDuration(30);
-  double held = -1;
-  while (ros::WallTime::now() < limit) {
-    const auto arrays = diagnostics.Get();
-    if (DiagnosticValue(arrays, node, "images processed") ==
-        static_cast<double>(info.images_processed)) {
-      held = DiagnosticValue(arrays, node, "loop closures held (temporal consistency)");
-      break;
-    }
-    ros::WallDuration(0.1).sleep();
-  }
+  // The counter, from a /diagnostics status sent after the last image was processed.
+  auto after_replay = [&](const NodeStatus& st) {
+    return StatusValue(st, "images processed") == static_cast<double>(info.images_processed);
+  };
+  const NodeStatus st = WaitForStatus(diagnostics, node, after_replay, 30);
+  const double held =
+      after_replay(st) ? StatusValue(st, "loop closures held (temporal consistency)") : -1;
   std::printf(
       "%s: %zu images processed, %d verified a candidate, %zu closures published, %.0f "
       "held\n",
@@ -73,14 +52,13 @@ void ExpectTemporalConsistency(const std::string& node,
     std::set<std::string> names;
     const auto arrays = diagnostics.Get();
     for (const auto& a : arrays) {
-      for (const auto& st : a.status) names.insert(st.name);
+      for (const auto& s : a.status) names.insert(s.name);
     }
     std::string seen;
     for (const auto& n : names) seen += " '" + n + "'";
     FAIL() << "no /diagnostics status of " << node << " after the replay (" << arrays.size()
            << " messages; statuses:" << seen << "; images processed "
-           << DiagnosticValue(arrays, node, "images processed") << " against "
-           << info.images_processed << ")";
+           << StatusValue(st, "images processed") << " against " << info.images_processed << ")";
   }
   EXPECT_GE(closures.size(), 1u);
   EXPECT_EQ(info.loop_closures, closures.size());
