@@ -80,9 +80,11 @@ std::unique_ptr<Vocabulary> GetVocabulary(const EvalArgs& a, const RetrievalConf
 
 // --sequence: the trail of each query (split trail_X of query split query_X, the nearest
 // sequence - 1 images, with trail_X_odometry.csv), to combine with the query's own features as
-// the node's Localizer::Combine does (CombineViews). A query keeps the trail images the node's
-// QuerySequence would (ImagesInSpan: up to the first beyond --sequence-max-span); a query left
-// with none is localized alone, as the node localizes an image whose sequence holds only it.
+// the node's Localizer::Combine does (CombineViews). A query keeps its trail images up to the
+// first beyond --sequence-max-span (ImagesInSpan, the rule the node's QuerySequence applies at
+// each image; applied once here, against the query, it keeps the same images for a trail that
+// leads away from the query, as gtbow synth's do); a query left with none is localized alone,
+// as the node localizes an image whose sequence holds only it.
 struct QueryTrails {
   std::vector<std::vector<ImageFeatures>> views;  // per query, nearest first
   std::vector<std::vector<Pose2D>> poses;         // per query: the query's (origin), then theirs

@@ -160,6 +160,10 @@ TEST(ImagesInSpan, StopsAtTheFirstOlderImageBeyondTheSpan) {
   EXPECT_EQ(ImagesInSpan({at, Pose2D{1.05, 1, 0}, P{}, Pose2D{1, 1.06, 0}}, o), 2u);
   o.length = 2;
   EXPECT_EQ(ImagesInSpan({at, Pose2D{1.05, 1, 0}, Pose2D{1, 1.09, 0}}, o), 2u);
+  // Exactly max_span away belongs (0.25 and 0.5 are exact in binary).
+  o.max_span = 0.25;
+  EXPECT_EQ(ImagesInSpan({Pose2D{0.5, 0, 0}, Pose2D{0.25, 0, 0}}, o), 2u);
+  EXPECT_EQ(ImagesInSpan({Pose2D{0.5, 0, 0}, Pose2D{0.2499, 0, 0}}, o), 1u);
 }
 
 TEST(SequenceFix, TheImageAloneFirstThenTheCombinedView) {

@@ -268,23 +268,37 @@ TEST(Backend, ClosuresCorrectTheOdometryAndAWrongOneIsIgnored) {
   const auto info = Info("/localizer");
   EXPECT_EQ(info.images_processed, frames.size()) << Counters(info);
   ASSERT_TRUE(wrong) << "no closure past the drive's middle to build the wrong one from";
-  // Every closure the localizer published, and the wrong one, has reached this test and each
-  // backend before they are counted: waited on, since a busy machine delivers them late.
+  // Every closure the localizer published, and the wrong one, has reached this test, and every
+  // closure and odometry message each backend, before they are counted: waited on, since a busy
+  // machine delivers them late. A backend's trajectory has a row per odometry message received.
   const size_t sent = info.loop_closures + 1;
   const ros::WallTime arrive = ros::WallTime::now() + ros::WallDuration(120);
   while (closures.Get().size() < sent && ros::WallTime::now() < arrive) {
     ros::WallDuration(0.05).sleep();
   }
   ASSERT_EQ(closures.Get().size(), sent) << "closures received here of those published";
+  const std::string arrived =
+      (fs::temp_directory_path() / ("gtbow_backend_arrived_" + std::to_string(getpid()) + ".csv"))
+          .string();
   for (const std::string& node : nodes) {
-    // save_trajectory without a path reports and optimises, as the backend's timer does.
-    SaveTrajectory s = Call<SaveTrajectory>("/" + node + "/save_trajectory");
-    while (s.response.closures_received < sent && ros::WallTime::now() < arrive) {
+    // save_trajectory reports and optimises, as the backend's timer does; the file gives the rows.
+    SaveTrajectory s;
+    size_t rows = 0;
+    for (;;) {
+      s.request.path = arrived;
+      s = Call("/" + node + "/save_trajectory", s);
+      ASSERT_EQ(s.response.status.code, Status::OK) << node << ": " << s.response.status.message;
+      rows = ReadTrajectory(arrived).size();
+      if ((s.response.closures_received >= sent && rows >= frames.size()) ||
+          ros::WallTime::now() > arrive) {
+        break;
+      }
       ros::WallDuration(0.05).sleep();
-      s = Call<SaveTrajectory>("/" + node + "/save_trajectory");
     }
     ASSERT_EQ(s.response.closures_received, sent) << node << ": closures received";
+    ASSERT_EQ(rows, frames.size()) << node << ": odometry messages received";
   }
+  fs::remove(arrived);
   const size_t q = index_of.at(wrong->query_stamp), m = index_of.at(wrong->match_stamp);
   const double true_distance =
       std::hypot(frames[m].truth.x - frames[q].truth.x, frames[m].truth.y - frames[q].truth.y);

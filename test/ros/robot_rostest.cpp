@@ -169,9 +169,10 @@ TEST(Robot, BaseFixesFromCameraInfoAndTfHeldWrongFixesAndAKidnappedRobot) {
   auto info = Info("/localizer");
   EXPECT_EQ(info.images_rejected, 0u) << "the camera's scale (camera_info, TF) is the map's";
   EXPECT_EQ(info.fixes_held, 0u) << "every fix agrees with the odometry";
-  // Every fix published, on both topics, has come before they are counted.
-  const auto base_fixes = Fixes(pose_topic.WaitFor(info.fixes));
+  // Every fix published, on both topics, has come before they are counted (each fix goes out
+  // on camera_pose; on pose when the base's transform was found).
   EXPECT_EQ(camera_topic.WaitFor(info.fixes).size(), info.fixes);
+  const auto base_fixes = Fixes(pose_topic.WaitFor(info.fixes));
   int good = 0;
   for (const Frame& f : day30) {
     auto it = base_fixes.find(f.image->header.stamp);
