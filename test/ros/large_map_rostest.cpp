@@ -5,10 +5,15 @@
 // (memory-mapped), and the mapper itself, which after the save answers from the file's mapping
 // instead of its heap copy, must both give exactly the answers recorded before the save, field
 // by field. A truncated copy of the file is refused with a clear status and the loaded map kept.
-// Last, the mapper inserts behind the file's mapping and saves again: the same check.
+// Last, the mapper inserts behind the file's mapping and saves again: the same check. Then a node
+// that shuts down (SIGINT) in the middle of a paced save finishes it unpaced, whole, and exits.
+#include <signal.h>
+
 #include <chrono>
 #include <condition_variable>
+#include <fstream>
 #include <set>
+#include <thread>
 
 #include "ground_texture_bow/core/localizer.h"
 #include "ground_texture_bow/eval/dataset.h"
@@ -230,6 +235,81 @@ TEST(LargeMap, SavedAndLoadedAnswersAreThoseBeforeTheSave) {
   EXPECT_EQ(load.response.keyframes, n + 1);
   ExpectSame(extended, Ask("/localizer", queries), "localizer (second save)");
   ExpectSame(extended, Ask("/mapper", queries), "mapper (after its second save)");
+
+  // A node shut down (SIGINT: Ctrl-C, the end of a roslaunch) while a paced save is under way:
+  // the rest of the save goes out unpaced (LocalizerServer::StopPacingSaves), the file is the
+  // whole map, and the node exits without waiting out the pace. /stopper saves at 1 MB/s, the
+  // slowest pace allowed, so the map would take as many seconds as it has megabytes.
+  {
+    ground_texture_bow::LoadMap stopper_load;
+    stopper_load.request.path = map2_path;
+    ASSERT_EQ(Call("/stopper/load_map", stopper_load).response.status.code, Status::OK);
+    const pid_t stopper = PidOf("/stopper");
+    ASSERT_GT(stopper, 0) << "no process id of /stopper";
+    const fs::path stopped = dir / "stopped.gtmap";
+    std::thread saving([&] {
+      ground_texture_bow::SaveMap s;
+      s.request.path = stopped.string();
+      (void)ros::service::call("/stopper/save_map", s);  // the node goes away during the call
+    });
+    // The writer is paced once its temporary file (".stopped.gtmap.tmp-<pid>-...") holds its
+    // first megabyte: the rest would take a second per megabyte.
+    const std::string prefix = ".stopped.gtmap.tmp-";
+    auto written = [&]() -> uintmax_t {
+      std::error_code ec;
+      for (const auto& e : fs::directory_iterator(dir, ec)) {
+        if (e.path().filename().string().rfind(prefix, 0) == 0) return fs::file_size(e, ec);
+      }
+      return 0;
+    };
+    const ros::WallTime cap = ros::WallTime::now() + ros::WallDuration(60);
+    while (written() < (uintmax_t{1} << 20) && ros::WallTime::now() < cap) {
+      ros::WallDuration(0.01).sleep();
+    }
+    const uintmax_t at_signal = written();
+    ASSERT_GE(at_signal, uintmax_t{1} << 20) << "the paced save did not start";
+    const uintmax_t map_bytes = fs::file_size(map2_path);
+    const ros::WallTime signalled = ros::WallTime::now();
+    ASSERT_EQ(::kill(stopper, SIGINT), 0);
+    // Gone, or a zombie not reaped yet by roslaunch.
+    auto exited = [&] {
+      if (::kill(stopper, 0) != 0) return true;
+      std::ifstream stat("/proc/" + std::to_string(stopper) + "/stat");
+      std::string pid, comm, state;
+      stat >> pid >> comm >> state;
+      return state == "Z" || state == "X";
+    };
+    while (!exited() && ros::WallTime::now() < signalled + ros::WallDuration(120)) {
+      ros::WallDuration(0.01).sleep();
+    }
+    const double took = (ros::WallTime::now() - signalled).toSec();
+    ASSERT_TRUE(exited()) << "/stopper still runs 120 s after SIGINT";
+    saving.join();
+    // Paced, the rest would have taken (map - written) / 1 MB/s; unpaced it is a write of that
+    // many megabytes, which any disk a robot has does at many times 1 MB/s: half the paced time
+    // is the bound (a disk slower than 2 MB/s would fail it, and is near the pace anyway).
+    const double paced_rest = static_cast<double>(map_bytes - std::min(map_bytes, at_signal)) / 1e6;
+    EXPECT_LT(took, 0.5 * paced_rest)
+        << "/stopper took " << took << " s to exit after SIGINT, " << (map_bytes - at_signal) / 1e6
+        << " MB of its save unwritten: the save went on at its pace";
+    // The whole map, every checksum verified, and no temporary file left.
+    ASSERT_TRUE(fs::exists(stopped)) << "the save was not finished";
+    const gtbow::MapFileInfo mi = gtbow::Localizer::ReadMapInfo(stopped.string());
+    EXPECT_EQ(mi.keyframes, n + 1);
+    gtbow::LocalizerOptions lo;
+    lo.retrieval = gtbow::ParseRetrievalConfig(mi.retrieval_config, "the map");
+    lo.meters_per_pixel = mi.meters_per_pixel;
+    lo.keep_descriptors = mi.descriptors;
+    gtbow::Localizer reloaded(gtbow::Vocabulary::Load(g_data + "/vocab.gtvoc"), mi.vocabulary_path,
+                              lo);
+    EXPECT_NO_THROW(reloaded.Load(stopped.string()));
+    EXPECT_EQ(reloaded.size(), n + 1u);
+    EXPECT_EQ(written(), 0u) << "a temporary file was left in " << dir;
+    std::printf(
+        "shutdown during a paced save: %.1f of %.1f MB written at SIGINT, exited %.2f s "
+        "later (paced, the rest would have taken %.0f s)\n",
+        at_signal / 1e6, map_bytes / 1e6, took, paced_rest);
+  }
 
   std::printf(
       "large map: %u keyframes, %.1f MB file; replay %.1f s, %zu queries %.1f s, save %.2f s, "
