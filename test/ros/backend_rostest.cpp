@@ -443,13 +443,8 @@ TEST(Backend, ClosuresCorrectTheOdometryAndAWrongOneIsIgnored) {
     const gtbow::MapFileInfo mi = gtbow::Localizer::ReadMapInfo(save.request.path);
     EXPECT_EQ(mi.pose_frame, "map");
     EXPECT_TRUE(mi.poses_optimised);
-    gtbow::LocalizerOptions lo;
-    lo.retrieval = gtbow::ParseRetrievalConfig(mi.retrieval_config, "the map");
-    lo.meters_per_pixel = mi.meters_per_pixel;
-    lo.keep_descriptors = mi.descriptors;
-    gtbow::Localizer saved(gtbow::Vocabulary::Load(g_data + "/vocab.gtvoc"), mi.vocabulary_path,
-                           lo);
-    saved.Load(save.request.path);
+    const auto loaded = LoadSavedMap(save.request.path, g_data + "/vocab.gtvoc");
+    const gtbow::Localizer& saved = *loaded;
     // Each keyframe (an image of the drive, by its stamp) against the truth, and the odometry
     // it was placed with before any correction (the map -> odom of the start is the identity).
     Errors map_err, odo_err;

@@ -296,14 +296,10 @@ TEST(LargeMap, SavedAndLoadedAnswersAreThoseBeforeTheSave) {
     ASSERT_TRUE(fs::exists(stopped)) << "the save was not finished";
     const gtbow::MapFileInfo mi = gtbow::Localizer::ReadMapInfo(stopped.string());
     EXPECT_EQ(mi.keyframes, n + 1);
-    gtbow::LocalizerOptions lo;
-    lo.retrieval = gtbow::ParseRetrievalConfig(mi.retrieval_config, "the map");
-    lo.meters_per_pixel = mi.meters_per_pixel;
-    lo.keep_descriptors = mi.descriptors;
-    gtbow::Localizer reloaded(gtbow::Vocabulary::Load(g_data + "/vocab.gtvoc"), mi.vocabulary_path,
-                              lo);
-    EXPECT_NO_THROW(reloaded.Load(stopped.string()));
-    EXPECT_EQ(reloaded.size(), n + 1u);
+    std::unique_ptr<gtbow::Localizer> reloaded;
+    EXPECT_NO_THROW(reloaded = LoadSavedMap(stopped.string(), g_data + "/vocab.gtvoc"));
+    ASSERT_TRUE(reloaded);
+    EXPECT_EQ(reloaded->size(), n + 1u);
     EXPECT_EQ(written(), 0u) << "a temporary file was left in " << dir;
     std::printf(
         "shutdown during a paced save: %.1f of %.1f MB written at SIGINT, exited %.2f s "

@@ -70,8 +70,10 @@
 #include "ground_texture_bow/SaveMap.h"
 #include "ground_texture_bow/SetMode.h"
 #include "ground_texture_bow/Status.h"
+#include "ground_texture_bow/core/config.h"
 #include "ground_texture_bow/core/file_util.h"
 #include "ground_texture_bow/core/geometry.h"
+#include "ground_texture_bow/core/localizer.h"
 #include "ground_texture_bow/ros/conversions.h"
 
 namespace rostest_util {
@@ -248,6 +250,22 @@ inline void Replay(const std::vector<Frame>& frames, const std::string& topic,
     ros::WallDuration(1.0 / rate).sleep();
     WaitUntilHandled(node, before + i + 1);
   }
+}
+
+// The map file a node saved, read back in this process with the map's own preset, scale and
+// descriptors (its header) and the vocabulary `vocab`. Load verifies every checksum; it throws
+// std::runtime_error naming the defect.
+inline std::unique_ptr<gtbow::Localizer> LoadSavedMap(const std::string& path,
+                                                      const std::string& vocab) {
+  const gtbow::MapFileInfo mi = gtbow::Localizer::ReadMapInfo(path);
+  gtbow::LocalizerOptions lo;
+  lo.retrieval = gtbow::ParseRetrievalConfig(mi.retrieval_config, "the map");
+  lo.meters_per_pixel = mi.meters_per_pixel;
+  lo.keep_descriptors = mi.descriptors;
+  auto loc =
+      std::make_unique<gtbow::Localizer>(gtbow::Vocabulary::Load(vocab), mi.vocabulary_path, lo);
+  loc->Load(path);
+  return loc;
 }
 
 // The process id of a ROS node (the slave API's getPid), or -1.
